@@ -1,0 +1,97 @@
+#pragma once
+/// \file config.hpp
+/// One plain struct with every parameter of the pipeline (DESIGN §2). Values from the paper are
+/// the defaults (δn, δd, δh, bins, σ, α, δ_blob, voxel, band); the others are ours. Passed down
+/// explicitly; there are no globals.
+
+#include <Eigen/Core>
+
+#include <string>
+
+namespace planesdf {
+
+struct Config {
+  // --- up axis -------------------------------------------------------------------------------
+  /// Gravity "up" in the world frame. Ignored when `up_auto` is true.
+  Eigen::Vector3d up{0.0, 0.0, 1.0};
+  /// Estimate up as the dominant plane's normal oriented toward the sensor (`--up auto`).
+  bool up_auto = false;
+
+  // --- plane detection, streams (per-frame RANSAC)
+  // ------------------------------------------------
+  double ransac_inlier_dist = 0.015;     ///< m
+  double ransac_min_inlier_frac = 0.05;  ///< of the frame's valid points
+  int ransac_iterations = 200;
+  int ransac_max_planes_per_frame = 6;
+  /// Merge a frame plane into a global plane when normals agree within this angle ...
+  double plane_merge_angle_deg = 10.0;
+  /// ... and offsets agree within this distance (m).
+  double plane_merge_offset = 0.05;
+  /// ... and their in-plane extents overlap or are at most this far apart (m).
+  double plane_merge_extent_gap = 0.5;
+  /// Points RANSAC scores hypotheses on (a deterministic subsample of the frame's valid points).
+  int ransac_max_samples = 2000;
+  /// Inliers kept per global plane for refinement (a uniform reservoir sample; bounds memory).
+  int plane_reservoir_size = 20000;
+
+  // --- plane detection, whole cloud ------------------------------------------------------------
+  int normal_knn = 20;           ///< k for PCA normals
+  double vmf_lambda_deg = 10.0;  ///< DP-vMF-means cluster angle λ
+  double offset_split = 0.05;    ///< split a normal cluster into planes by offset (m)
+  int min_plane_support = 2000;  ///< points needed to keep a plane
+  /// Organised clouds: normals from an image window about this wide (m); the window in pixels
+  /// adapts to the depth and is never smaller than about sqrt(normal_knn) pixels.
+  double normal_window = 0.03;
+  /// Split a plane into its spatially connected parts on a grid of this cell size (m); parts
+  /// below min_plane_support are dropped. 0 disables the split.
+  double plane_connect_cell = 0.05;
+
+  // --- plane filter ------------------------------------------------------------------------------
+  double orientation_tolerance_deg = 10.0;  ///< horizontal / vertical w.r.t. up
+
+  // --- plane refinement (Ceres) ---------------------------------------------------------------
+  double refine_loss_scale = 0.01;    ///< robust loss scale (m)
+  int refine_min_new_inliers = 5000;  ///< re-run when a plane gained this many inliers
+  int refine_max_points = 10000;      ///< refinement uses at most this many points (subsampled)
+
+  // --- PlaneSDF fusion
+  // ----------------------------------------------------------------------------
+  double voxel_size = 0.007;  ///< m
+  double fuse_band = 0.30;    ///< m above the plane (free side)
+  double below_band = 0.03;   ///< m below the plane also fused (thin band)
+  int truncation_voxels = 4;  ///< TSDF truncation in voxels
+  double max_depth = 4.0;     ///< m; depth beyond this is ignored
+  double min_depth = 0.2;     ///< m
+  float max_weight = 100.0f;  ///< weight cap per voxel
+  int threads = 0;            ///< fusion threads; 0 = hardware concurrency
+  /// Lateral radius (in voxels) of the cylinder a point with a normal updates when an
+  /// unorganised cloud is splatted (integratePointsWithNormals).
+  double splat_radius_voxels = 1.0;
+
+  // --- height map / object map ---------------------------------------------------------------
+  float w_min = 1.0f;   ///< minimum TSDF weight for a surface / observed cell
+  double h_obj = 0.01;  ///< m; cells above this height belong to objects
+
+  // --- registration ------------------------------------------------------------------------------
+  double delta_n = 0.95;       ///< minimum cosine between normals
+  double delta_d = 0.20;       ///< m; maximum offset gap
+  bool refine_inplane = true;  ///< refine (u, v, yaw) from static height-map structure
+
+  // --- height comparison -------------------------------------------------------------------------
+  double delta_h = 0.02;      ///< m
+  int min_change_cells = 20;  ///< drop changed components smaller than this
+  int dilation_cells = 1;
+
+  // --- 3D validation ----------------------------------------------------------------------------
+  int bins_theta = 5;
+  int bins_phi = 5;
+  int bins_lambda = 6;
+  double sdf_sigma_voxels = 2.0;
+  double alpha = 2.0;
+  double delta_blob = 0.9;
+
+  /// Truncation distance in metres.
+  double truncation() const { return truncation_voxels * voxel_size; }
+};
+
+}  // namespace planesdf

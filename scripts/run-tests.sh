@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Builds planesdf and runs every test, as CI does (.ci/run calls this script):
+#   1. Release build with warnings as errors; all tests (unit, adapter, end-to-end on ../shared).
+#   2. Install into a prefix and build + run an out-of-tree find_package(planesdf) consumer.
+#   3. AddressSanitizer + UndefinedBehaviorSanitizer build; the unit tests.
+# Usage: bash scripts/run-tests.sh [--no-sanitizers]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+jobs=$(nproc 2>/dev/null || echo 2)
+sanitizers=1
+[ "${1:-}" = "--no-sanitizers" ] && sanitizers=0
+
+step() { printf '\n=== %s (%ds)\n' "$*" "$SECONDS" >&2; }
+
+step "dependencies"
+bash scripts/install-deps.sh
+
+step "release build"
+cmake -S . -B build -DCMAKE_BUILD_TYPE=Release -DPLANESDF_WERROR=ON >/dev/null
+cmake --build build -j"$jobs"
+
+step "release tests"
+ctest --test-dir build --output-on-failure -j"$jobs" --timeout 600
+
+step "install + out-of-tree consumer"
+rm -rf build/_install build/_consumer
+cmake --install build --prefix build/_install >/dev/null
+cmake -S tests/consumer -B build/_consumer -DCMAKE_PREFIX_PATH="$root/build/_install" >/dev/null
+cmake --build build/_consumer -j"$jobs" >/dev/null
+build/_consumer/consumer
+
+if [ "$sanitizers" = 1 ]; then
+  step "address + undefined sanitizer build"
+  cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPLANESDF_SANITIZE=address,undefined \
+    -DPLANESDF_BUILD_APPS=OFF -DPLANESDF_BUILD_BENCH=OFF -DPLANESDF_BUILD_EXAMPLES=OFF >/dev/null
+  cmake --build build-asan -j"$jobs"
+  step "sanitizer unit tests"
+  ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+    ctest --test-dir build-asan -L unit --output-on-failure -j"$jobs" --timeout 900
+fi
+step "all tests passed"

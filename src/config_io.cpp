@@ -1,0 +1,164 @@
+#include "planesdf/config_io.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <variant>
+#include <vector>
+
+#include "planesdf/error.hpp"
+#include "planesdf/io/atomic_file.hpp"
+
+namespace planesdf {
+namespace {
+
+using Member = std::variant<double Config::*, float Config::*, int Config::*, bool Config::*>;
+struct Param {
+  const char* name;
+  Member member;
+};
+
+// Every scalar parameter of Config by its member name (the JSON key). `up` is handled apart.
+const std::vector<Param>& params() {
+  static const std::vector<Param> table = {
+      {"up_auto", &Config::up_auto},
+      {"ransac_inlier_dist", &Config::ransac_inlier_dist},
+      {"ransac_min_inlier_frac", &Config::ransac_min_inlier_frac},
+      {"ransac_iterations", &Config::ransac_iterations},
+      {"ransac_max_planes_per_frame", &Config::ransac_max_planes_per_frame},
+      {"plane_merge_angle_deg", &Config::plane_merge_angle_deg},
+      {"plane_merge_offset", &Config::plane_merge_offset},
+      {"normal_knn", &Config::normal_knn},
+      {"vmf_lambda_deg", &Config::vmf_lambda_deg},
+      {"offset_split", &Config::offset_split},
+      {"min_plane_support", &Config::min_plane_support},
+      {"orientation_tolerance_deg", &Config::orientation_tolerance_deg},
+      {"refine_loss_scale", &Config::refine_loss_scale},
+      {"refine_min_new_inliers", &Config::refine_min_new_inliers},
+      {"voxel_size", &Config::voxel_size},
+      {"fuse_band", &Config::fuse_band},
+      {"below_band", &Config::below_band},
+      {"truncation_voxels", &Config::truncation_voxels},
+      {"max_depth", &Config::max_depth},
+      {"min_depth", &Config::min_depth},
+      {"max_weight", &Config::max_weight},
+      {"threads", &Config::threads},
+      {"w_min", &Config::w_min},
+      {"h_obj", &Config::h_obj},
+      {"delta_n", &Config::delta_n},
+      {"delta_d", &Config::delta_d},
+      {"refine_inplane", &Config::refine_inplane},
+      {"delta_h", &Config::delta_h},
+      {"min_change_cells", &Config::min_change_cells},
+      {"dilation_cells", &Config::dilation_cells},
+      {"bins_theta", &Config::bins_theta},
+      {"bins_phi", &Config::bins_phi},
+      {"bins_lambda", &Config::bins_lambda},
+      {"sdf_sigma_voxels", &Config::sdf_sigma_voxels},
+      {"alpha", &Config::alpha},
+      {"delta_blob", &Config::delta_blob},
+  };
+  return table;
+}
+
+void setParam(Config& cfg, const Param& p, const nlohmann::json& v, const std::string& name) {
+  const std::string key = p.name;
+  auto bad = [&](const char* expected) {
+    throw Error(name, "key '" + key + "': expected " + expected + ", got " + v.dump());
+  };
+  std::visit(
+      [&](auto member) {
+        using T = std::decay_t<decltype(cfg.*member)>;
+        if constexpr (std::is_same_v<T, bool>) {
+          if (!v.is_boolean()) bad("true or false");
+          cfg.*member = v.get<bool>();
+        } else if constexpr (std::is_same_v<T, int>) {
+          if (!v.is_number_integer()) bad("an integer");
+          const auto x = v.get<long long>();
+          if (x < -1000000000LL || x > 1000000000LL) bad("an integer in range");
+          cfg.*member = static_cast<int>(x);
+        } else {
+          if (!v.is_number()) bad("a number");
+          const double x = v.get<double>();
+          if (!std::isfinite(x)) bad("a finite number");
+          cfg.*member = static_cast<T>(x);
+        }
+      },
+      p.member);
+}
+
+}  // namespace
+
+Config parseConfigJson(const std::string& text, const std::string& name, const Config& base) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::parse_error& e) {
+    throw Error(name, std::string("invalid JSON: ") + e.what());
+  }
+  if (!j.is_object()) throw Error(name, "expected a JSON object of Config parameters");
+  Config cfg = base;
+  for (auto it = j.begin(); it != j.end(); ++it) {
+    const std::string& key = it.key();
+    if (key == "up") {
+      const auto& v = it.value();
+      if (!v.is_array() || v.size() != 3 || !v[0].is_number() || !v[1].is_number() ||
+          !v[2].is_number())
+        throw Error(name, "key 'up': expected an array of three numbers, got " + v.dump());
+      cfg.up = Eigen::Vector3d(v[0].get<double>(), v[1].get<double>(), v[2].get<double>());
+      continue;
+    }
+    const Param* found = nullptr;
+    for (const auto& p : params())
+      if (key == p.name) found = &p;
+    if (!found) throw Error(name, "unknown key '" + key + "'");
+    setParam(cfg, *found, it.value(), name);
+  }
+  validateConfig(cfg, name);
+  return cfg;
+}
+
+Config loadConfigJson(const std::string& path, const Config& base) {
+  return parseConfigJson(io::readFile(path), path, base);
+}
+
+std::string configToJson(const Config& cfg) {
+  nlohmann::ordered_json j;
+  j["up"] = {cfg.up.x(), cfg.up.y(), cfg.up.z()};
+  for (const auto& p : params())
+    std::visit([&](auto member) { j[p.name] = cfg.*member; }, p.member);
+  return j.dump(2) + "\n";
+}
+
+void validateConfig(const Config& cfg, const std::string& what) {
+  auto require = [&](bool ok, const std::string& msg) {
+    if (!ok) throw Error(what, msg);
+  };
+  require(cfg.up.allFinite() && cfg.up.norm() > 1e-9, "up axis must be a non-zero finite vector");
+  require(cfg.voxel_size >= 0.001 && cfg.voxel_size <= 1.0, "voxel_size must be in [0.001, 1] m");
+  require(cfg.fuse_band > 0.0 && cfg.fuse_band <= 10.0, "fuse_band must be in (0, 10] m");
+  require(cfg.below_band >= 0.0, "below_band must be >= 0");
+  require(cfg.truncation_voxels >= 1 && cfg.truncation_voxels <= 64,
+          "truncation_voxels must be in [1, 64]");
+  require(cfg.min_depth >= 0.0 && cfg.max_depth > cfg.min_depth,
+          "depth range must satisfy 0 <= min_depth < max_depth");
+  require(cfg.max_weight > 0.0f && cfg.w_min >= 0.0f, "weights must be positive");
+  require(cfg.threads >= 0, "threads must be >= 0");
+  require(cfg.delta_n > 0.0 && cfg.delta_n <= 1.0, "delta_n must be in (0, 1]");
+  require(cfg.delta_d >= 0.0 && cfg.delta_h > 0.0 && cfg.h_obj > 0.0,
+          "delta_d, delta_h and h_obj must be positive");
+  require(cfg.bins_theta >= 1 && cfg.bins_phi >= 1 && cfg.bins_lambda >= 1 &&
+              cfg.bins_theta * cfg.bins_phi * cfg.bins_lambda <= 4096,
+          "histogram bins must be >= 1 and at most 4096 in all");
+  require(cfg.alpha > 0.0 && cfg.delta_blob > 0.0 && cfg.delta_blob <= 1.0,
+          "alpha must be > 0 and delta_blob in (0, 1]");
+  require(cfg.sdf_sigma_voxels > 0.0, "sdf_sigma_voxels must be > 0");
+  require(cfg.ransac_inlier_dist > 0.0 && cfg.ransac_iterations >= 1 &&
+              cfg.ransac_min_inlier_frac > 0.0 && cfg.ransac_min_inlier_frac <= 1.0,
+          "RANSAC parameters out of range");
+  require(cfg.normal_knn >= 3 && cfg.normal_knn <= 1000, "normal_knn must be in [3, 1000]");
+  require(cfg.min_change_cells >= 0 && cfg.dilation_cells >= 0,
+          "min_change_cells and dilation_cells must be >= 0");
+}
+
+}  // namespace planesdf

@@ -1,0 +1,78 @@
+// Config defaults (the paper's values) and the JSON config file.
+#include <gtest/gtest.h>
+
+#include "planesdf/config.hpp"
+#include "planesdf/config_io.hpp"
+#include "planesdf/error.hpp"
+#include "test_support.hpp"
+
+namespace {
+using planesdf::Config;
+using planesdf::Error;
+
+std::string errorOf(const std::string& text) {
+  try {
+    planesdf::parseConfigJson(text, "cfg.json");
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Config, PaperDefaults) {
+  const Config c;
+  EXPECT_DOUBLE_EQ(c.delta_n, 0.95);
+  EXPECT_DOUBLE_EQ(c.delta_d, 0.20);
+  EXPECT_DOUBLE_EQ(c.delta_h, 0.02);
+  EXPECT_DOUBLE_EQ(c.voxel_size, 0.007);
+  EXPECT_DOUBLE_EQ(c.fuse_band, 0.30);
+  EXPECT_EQ(c.bins_theta * c.bins_phi * c.bins_lambda * 3 + 1, 451);
+  EXPECT_DOUBLE_EQ(c.alpha, 2.0);
+  EXPECT_DOUBLE_EQ(c.delta_blob, 0.9);
+  EXPECT_DOUBLE_EQ(c.sdf_sigma_voxels, 2.0);
+  EXPECT_NEAR(c.truncation(), 0.028, 1e-12);
+  EXPECT_NO_THROW(planesdf::validateConfig(c));
+}
+
+TEST(Config, JsonRoundTripIsExact) {
+  Config c;
+  c.voxel_size = 0.0051;
+  c.up = Eigen::Vector3d(0, -1, 0);
+  c.up_auto = true;
+  c.bins_lambda = 7;
+  c.max_weight = 37.5f;
+  const Config back = planesdf::parseConfigJson(planesdf::configToJson(c), "x");
+  EXPECT_EQ(planesdf::configToJson(back), planesdf::configToJson(c));
+  EXPECT_EQ(back.voxel_size, 0.0051);
+  EXPECT_EQ(back.up, Eigen::Vector3d(0, -1, 0));
+  EXPECT_TRUE(back.up_auto);
+}
+
+TEST(Config, PartialFileKeepsDefaults) {
+  const Config c = planesdf::parseConfigJson(R"({"delta_h": 0.03})", "x");
+  EXPECT_DOUBLE_EQ(c.delta_h, 0.03);
+  EXPECT_DOUBLE_EQ(c.delta_d, 0.20);
+}
+
+TEST(Config, BadFilesNameFileAndKey) {
+  EXPECT_NE(errorOf("{").find("cfg.json: invalid JSON"), std::string::npos);
+  EXPECT_NE(errorOf("[1,2]").find("expected a JSON object"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"voxel": 0.01})").find("unknown key 'voxel'"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"voxel_size": "big"})").find("key 'voxel_size'"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"bins_phi": 2.5})").find("integer"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"voxel_size": -1})").find("voxel_size must be"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"up": [0, 0]})").find("key 'up'"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
+}
+
+TEST(Config, MissingFileNamesIt) {
+  planesdf::test::TempDir tmp;
+  try {
+    planesdf::loadConfigJson(tmp.file("none.json"));
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("none.json"), std::string::npos);
+  }
+}
+
+}  // namespace
