@@ -66,7 +66,7 @@ int runInfo(const std::string& input) {
               << "  depth scale: " << seq.depth_scale << " per metre\n";
     return 0;
   }
-  const planesdf::PointCloud cloud = planesdf::io::readCloud(input);
+  const planesdf::PointCloud cloud = planesdf::io::readSceneCloud(input);
   Eigen::AlignedBox3f box;
   for (const auto& p : cloud.points)
     if (planesdf::PointCloud::isValid(p)) box.extend(p);

@@ -25,6 +25,19 @@ PointCloud readCloud(const std::string& path) {
   throw Error(path, "unsupported point cloud extension '" + ext + "' (expected .ply or .pcd)");
 }
 
+void requireValidPoints(const PointCloud& cloud, const std::string& path) {
+  if (cloud.empty()) throw Error(path, "the cloud has no points");
+  if (cloud.countValid() == 0)
+    throw Error(path, "none of the " + std::to_string(cloud.size()) +
+                          " points is valid (every coordinate is NaN or Inf)");
+}
+
+PointCloud readSceneCloud(const std::string& path) {
+  PointCloud cloud = readCloud(path);
+  requireValidPoints(cloud, path);
+  return cloud;
+}
+
 void writeCloud(const std::string& path, const PointCloud& cloud) {
   const std::string ext = lowerExtension(path);
   if (ext == ".ply") return writePly(path, cloud);

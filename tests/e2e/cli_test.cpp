@@ -65,6 +65,26 @@ TEST(Cli, CorruptInputIsOneLineNamingTheFile) {
   EXPECT_NE(r.out.find(bad), std::string::npos) << r.out;
 }
 
+TEST(Cli, CloudsWithoutAValidPointAreBadInput) {
+  TempDir tmp;
+  const std::string nan_ply = tmp.file("nan.ply");
+  planesdf::test::writeBytes(nan_ply,
+                             "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n"
+                             "property float y\nproperty float z\nend_header\n"
+                             "nan nan nan\ninf 0 1\n");
+  const std::string empty_pcd = tmp.file("empty.pcd");
+  planesdf::test::writeBytes(empty_pcd,
+                             "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n"
+                             "COUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nPOINTS 0\nDATA ascii\n");
+  for (const std::string& f : {nan_ply, empty_pcd}) {
+    const auto r = runCli("info '" + f + "'");
+    EXPECT_EQ(r.exit_code, 1) << r.out;
+    EXPECT_EQ(countLines(r.out), 1) << r.out;
+    EXPECT_NE(r.out.find(f), std::string::npos) << r.out;
+  }
+  EXPECT_NE(runCli("info '" + nan_ply + "'").out.find("NaN or Inf"), std::string::npos);
+}
+
 TEST(Cli, FolderThatIsNotATumSequence) {
   TempDir tmp;
   const auto r = runCli("info '" + tmp.path() + "'");
