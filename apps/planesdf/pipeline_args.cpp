@@ -1,0 +1,30 @@
+// Turning the shared pipeline flags into a Config.
+#include <sstream>
+
+#include "commands.hpp"
+#include "planesdf/config_io.hpp"
+#include "planesdf/error.hpp"
+
+namespace planesdf::cli {
+
+Config resolveConfig(const PipelineArgs& args) {
+  Config cfg = args.cfg;
+  if (args.up == "auto") {
+    cfg.up_auto = true;
+  } else {
+    std::istringstream in(args.up);
+    double v[3];
+    char c1 = 0, c2 = 0;
+    if (!(in >> v[0] >> c1 >> v[1] >> c2 >> v[2]) || c1 != ',' || c2 != ',' || !in.eof())
+      throw Error("--up", "expected 'auto' or X,Y,Z, got '" + args.up + "'");
+    cfg.up = Eigen::Vector3d(v[0], v[1], v[2]);
+    if (!cfg.up.allFinite() || cfg.up.norm() < 1e-9)
+      throw Error("--up", "the up axis must be a non-zero vector, got '" + args.up + "'");
+    cfg.up.normalize();
+    cfg.up_auto = false;
+  }
+  validateConfig(cfg, "command line");
+  return cfg;
+}
+
+}  // namespace planesdf::cli
