@@ -57,6 +57,14 @@ const std::vector<Param>& params() {
       {"sdf_sigma_voxels", &Config::sdf_sigma_voxels},
       {"alpha", &Config::alpha},
       {"delta_blob", &Config::delta_blob},
+      {"plane_merge_extent_gap", &Config::plane_merge_extent_gap},
+      {"ransac_max_samples", &Config::ransac_max_samples},
+      {"plane_reservoir_size", &Config::plane_reservoir_size},
+      {"normal_window", &Config::normal_window},
+      {"plane_connect_cell", &Config::plane_connect_cell},
+      {"refine_max_points", &Config::refine_max_points},
+      {"splat_radius_voxels", &Config::splat_radius_voxels},
+      {"point_cell", &Config::point_cell},
   };
   return table;
 }

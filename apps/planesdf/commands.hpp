@@ -34,6 +34,7 @@ int runEval(const EvalArgs& args);
 struct FuseArgs {
   std::string input;
   std::string out;
+  std::string pictures;  ///< optional folder for height-map / object-map PNGs
   PipelineArgs pipeline;
 };
 int runFuse(const FuseArgs& args);

@@ -27,8 +27,10 @@ struct Config {
   double plane_merge_angle_deg = 10.0;
   /// ... and offsets agree within this distance (m).
   double plane_merge_offset = 0.05;
-  /// ... and their in-plane extents overlap or are at most this far apart (m).
-  double plane_merge_extent_gap = 0.5;
+  /// ... and their in-plane extents overlap or are at most this far apart (m). Large by default:
+  /// a PlaneSDF fuses the whole (unbounded) band of its plane, so two coplanar planes would hold
+  /// duplicate volumes; coplanar patches (a floor seen around a table) are one plane.
+  double plane_merge_extent_gap = 1000.0;
   /// Points RANSAC scores hypotheses on (a deterministic subsample of the frame's valid points).
   int ransac_max_samples = 2000;
   /// Inliers kept per global plane for refinement (a uniform reservoir sample; bounds memory).
@@ -67,6 +69,10 @@ struct Config {
   /// Lateral radius (in voxels) of the cylinder a point with a normal updates when an
   /// unorganised cloud is splatted (integratePointsWithNormals).
   double splat_radius_voxels = 1.0;
+
+  /// Frame streams keep at most one input point per cell of this size (m) for the change
+  /// outputs; 0 keeps every in-band point. Whole clouds (Map::fromCloud) keep every point.
+  double point_cell = 0.0035;
 
   // --- height map / object map ---------------------------------------------------------------
   float w_min = 1.0f;   ///< minimum TSDF weight for a surface / observed cell

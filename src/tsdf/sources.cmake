@@ -1,1 +1,1 @@
-set(PLANESDF_TSDF_SOURCES)
+set(PLANESDF_TSDF_SOURCES tsdf_volume.cpp fusion.cpp organized_cloud.cpp)

@@ -48,6 +48,16 @@ TEST(Config, JsonRoundTripIsExact) {
   EXPECT_TRUE(back.up_auto);
 }
 
+TEST(Config, EveryMemberIsAJsonKey) {
+  // Each scalar member of Config must have a JSON key: CMake counts the member declarations in
+  // config.hpp, so a parameter added without a key fails here.
+  const std::string json = planesdf::configToJson(Config{});
+  std::size_t keys = 0;
+  for (std::size_t i = json.find("\": "); i != std::string::npos; i = json.find("\": ", i + 1))
+    ++keys;
+  EXPECT_EQ(keys, 1u + PLANESDF_CONFIG_SCALAR_MEMBERS);
+}
+
 TEST(Config, PartialFileKeepsDefaults) {
   const Config c = planesdf::parseConfigJson(R"({"delta_h": 0.03})", "x");
   EXPECT_DOUBLE_EQ(c.delta_h, 0.03);

@@ -1,0 +1,97 @@
+#include "session_input.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+#include <sstream>
+#include <vector>
+
+#include "planesdf/error.hpp"
+#include "planesdf/io/cloud.hpp"
+#include "planesdf/io/tum.hpp"
+
+namespace planesdf::cli {
+namespace fs = std::filesystem;
+
+Intrinsics parseIntrinsics(const std::string& text) {
+  std::vector<double> v;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    try {
+      std::size_t used = 0;
+      v.push_back(std::stod(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      throw Error("--intrinsics", "'" + item + "' is not a number (expected fx,fy,cx,cy[,w,h])");
+    }
+  }
+  if (v.size() != 4 && v.size() != 6)
+    throw Error("--intrinsics",
+                "expected fx,fy,cx,cy or fx,fy,cx,cy,width,height, got '" + text + "'");
+  Intrinsics k;
+  k.fx = v[0];
+  k.fy = v[1];
+  k.cx = v[2];
+  k.cy = v[3];
+  if (v.size() == 6) {
+    if (v[4] != std::floor(v[4]) || v[5] != std::floor(v[5]) || v[4] < 1 || v[5] < 1 ||
+        v[4] > 16384 || v[5] > 16384)
+      throw Error("--intrinsics", "width and height must be whole numbers in [1, 16384]");
+    k.width = static_cast<int>(v[4]);
+    k.height = static_cast<int>(v[5]);
+  }
+  k.validate("--intrinsics");
+  return k;
+}
+
+namespace {
+
+std::string lowerExtension(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+Map fuseTum(const std::string& folder, const Config& cfg, const std::string& intrinsics,
+            const std::string& label) {
+  io::TumOptions opt;
+  if (!intrinsics.empty()) opt.intrinsics = parseIntrinsics(intrinsics);
+  const io::TumSequence seq = io::readTumSequence(folder, opt);
+  Map map(cfg);
+  const std::size_t n = seq.frames.size();
+  auto last = std::chrono::steady_clock::now();
+  double total_ms = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const IntegrateStats s = map.integrate(io::loadTumDepth(seq, i), seq.frames[i].pose);
+    total_ms += s.milliseconds;
+    const auto now = std::chrono::steady_clock::now();
+    if (i + 1 == n || now - last > std::chrono::milliseconds(500)) {
+      std::cerr << label << ": frame " << (i + 1) << "/" << n << ", " << map.planes().size()
+                << " planes, " << (total_ms / static_cast<double>(i + 1)) << " ms/frame\n";
+      last = now;
+    }
+  }
+  if (seq.dropped_frames > 0)
+    std::cerr << label << ": " << seq.dropped_frames
+              << " depth frames had no ground-truth pose and were skipped\n";
+  return map;
+}
+
+}  // namespace
+
+Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
+                const std::string& label) {
+  if (fs::is_directory(input)) {
+    if (!io::isTumFolder(input))
+      throw Error(input, "not a TUM RGB-D sequence (no depth.txt) and not a cloud or map file");
+    return fuseTum(input, cfg, intrinsics, label);
+  }
+  if (lowerExtension(input) == ".psdf") return Map::load(input);
+  return Map::fromCloud(io::readSceneCloud(input), cfg);
+}
+
+}  // namespace planesdf::cli

@@ -1,0 +1,18 @@
+#pragma once
+// Loading one session for the CLI: a .ply/.pcd scene cloud, a TUM RGB-D folder or a .psdf map.
+
+#include <string>
+
+#include "planesdf/map.hpp"
+
+namespace planesdf::cli {
+
+/// Parses "fx,fy,cx,cy[,width,height]" (throws planesdf::Error("--intrinsics", ...)).
+Intrinsics parseIntrinsics(const std::string& text);
+
+/// The map of one session input. TUM folders are fused frame by frame with progress on stderr
+/// (prefixed by `label`); clouds go through Map::fromCloud; .psdf maps are loaded as saved.
+Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
+                const std::string& label);
+
+}  // namespace planesdf::cli

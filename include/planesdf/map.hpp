@@ -1,0 +1,106 @@
+#pragma once
+/// \file map.hpp
+/// The map of one session (paper §III-A): a set of PlaneSDFs — detected horizontal / vertical
+/// planes, each owning a block-sparse TSDF of the band above it in the plane's local frame —
+/// plus the input points that fell into some band (the change outputs report them).
+///
+/// Single-threaded ownership: one thread calls integrate(); fusion parallelises internally
+/// (OpenMP, Config::threads). Copyable (deep) and movable.
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "planesdf/config.hpp"
+#include "planesdf/plane.hpp"
+#include "planesdf/tsdf.hpp"
+#include "planesdf/types.hpp"
+
+namespace planesdf {
+
+/// One plane and its TSDF volume (in plane.frame() coordinates: u, v in-plane, h height).
+struct PlaneSdf {
+  Plane plane;
+  TsdfVolume volume;
+};
+
+/// What one integrate() call did.
+struct IntegrateStats {
+  std::vector<int> new_planes;      ///< ids of the planes this call created
+  std::vector<int> updated_planes;  ///< ids of the planes whose volume the frame reached
+  std::vector<int> changed_planes;  ///< ids of the planes whose volume changed
+  std::size_t blocks_updated = 0;   ///< over all planes (frustum-limited)
+  std::size_t blocks_allocated = 0;
+  std::size_t points_fused = 0;  ///< measurements inside some plane's band
+  double milliseconds = 0.0;     ///< wall time of the call
+};
+
+class Map {
+ public:
+  /// An empty map. Throws planesdf::Error("config", ...) on invalid parameters.
+  explicit Map(const Config& cfg = Config{});
+
+  /// Fuses one depth frame (camera-to-world pose, OpenCV optical camera frame): per-frame RANSAC
+  /// planes merged into the map's planes (stable ids), then projective fusion into every plane
+  /// volume, touching only blocks inside the camera frustum and depth range.
+  /// Throws planesdf::Error on a malformed frame (bad intrinsics, wrong buffer size).
+  IntegrateStats integrate(const DepthFrame& frame, const Pose& camera_to_world);
+
+  /// Fuses a point cloud whose points are in its own frame; `cloud_to_world` places that frame.
+  /// Organised clouds (height > 1) are a frame seen from cloud.sensor_pose: fused projectively
+  /// (free space carved) with intrinsics estimated from the pixel grid. Unorganised clouds get
+  /// PCA normals (oriented toward the sensor when known) and are splatted along them; their planes
+  /// come from whole-cloud detection. Throws planesdf::Error on an inconsistent cloud.
+  IntegrateStats integrate(const PointCloud& cloud, const Pose& cloud_to_world);
+
+  /// The map of one whole scene cloud in the world frame: planes by whole-cloud detection (PCA
+  /// normals, normal clustering, offset split), then fusion as integrate(cloud, identity). All
+  /// in-band points are kept.
+  static Map fromCloud(const PointCloud& world, const Config& cfg);
+
+  const Config& config() const { return cfg_; }
+  /// The PlaneSDFs; planes()[i].plane.id == i.
+  const std::vector<PlaneSdf>& planes() const { return planes_; }
+  /// The PlaneSDF with this id, or nullptr.
+  const PlaneSdf* findPlane(int id) const;
+  /// The up axis in use (cfg.up, or the estimate once `--up auto` has fixed it).
+  Eigen::Vector3d up() const;
+  /// Number of integrate() calls so far.
+  std::uint64_t frames() const { return frames_; }
+  /// Input points (world frame) that may belong to objects — at least h_obj/2 above some plane
+  /// and inside its band: every one for fromCloud(), at most one per cfg.point_cell cell for
+  /// frame streams. The change outputs report these points.
+  const std::vector<Eigen::Vector3f>& points() const { return points_; }
+  /// Bytes held by all volumes and the kept points.
+  std::size_t memoryBytes() const;
+
+  /// Writes the map atomically: magic "PSDFMAP", format version, config, planes, blocks, points
+  /// and a checksum. Throws planesdf::Error naming the path on failure.
+  void save(const std::string& path) const;
+  /// Reads a map written by save(). A truncated, corrupted or foreign file throws
+  /// planesdf::Error naming it. The loaded map can keep integrating frames.
+  static Map load(const std::string& path);
+  /// save()/load() through memory; `name` is used in error messages.
+  std::string serialize() const;
+  static Map deserialize(const std::string& bytes, const std::string& name);
+
+ private:
+  void syncPlanes(IntegrateStats& stats);
+  IntegrateStats integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
+                                bool whole_cloud);
+  void keepPoints(const std::vector<Eigen::Vector3f>& points_world, bool deduplicate);
+  IntegrateStats fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
+                           const std::vector<Eigen::Vector3f>& points_world);
+
+  Config cfg_;
+  PlaneTracker tracker_;
+  std::vector<PlaneSdf> planes_;
+  std::vector<Eigen::Vector3f> points_;
+  BlockHashMap point_cells_;  ///< cells already holding a kept point (used as a set)
+  std::uint64_t frames_ = 0;
+};
+
+}  // namespace planesdf

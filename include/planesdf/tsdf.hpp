@@ -1,0 +1,356 @@
+#pragma once
+/// \file tsdf.hpp
+/// The block-sparse TSDF volume of one PlaneSDF and its fusion (DESIGN §2, "PlaneSDF fusion").
+///
+/// A volume lives in its plane's LOCAL frame: x = u and y = v span the plane, z = h is the height
+/// above the plane along its normal (positive on the free side). Voxels are cubes of side
+/// `voxelSize()`; the voxel with global integer index (i, j, k) covers
+/// [i, i+1) x [j, j+1) x [k, k+1) voxels and has its centre at ((i, j, k) + 0.5) * voxelSize().
+/// Voxels are grouped in blocks of 8^3, allocated on demand and kept in a hash map keyed by the
+/// integer block index (block = floor(voxel / 8)).
+///
+/// SDF values are in metres, clamped to [-truncation, +truncation], positive in free space.
+/// A voxel is *observed* when its weight is > 0.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <utility>
+#include <vector>
+
+#include "planesdf/config.hpp"
+#include "planesdf/types.hpp"
+
+namespace planesdf {
+
+/// One TSDF voxel: signed distance (m) and accumulated weight (0 = never observed).
+struct TsdfVoxel {
+  float sdf = 0.0f;
+  float weight = 0.0f;
+};
+static_assert(sizeof(TsdfVoxel) == 8, "TsdfVoxel must stay 8 bytes");
+
+/// Voxels per block side, per block, and the block side as a shift.
+constexpr int kTsdfBlockSide = 8;
+constexpr int kTsdfBlockShift = 3;
+constexpr int kTsdfBlockVoxels = kTsdfBlockSide * kTsdfBlockSide * kTsdfBlockSide;
+
+/// A block of 8^3 voxels, stored x fastest: voxels[x + 8 * (y + 8 * z)].
+struct TsdfBlock {
+  std::array<TsdfVoxel, kTsdfBlockVoxels> voxels{};
+  Eigen::Vector3i index = Eigen::Vector3i::Zero();  ///< integer block index
+  std::uint64_t revision = 0;  ///< the volume revision at which a voxel last changed
+
+  /// Global voxel index of the voxel stored at `linear` (0..511).
+  Eigen::Vector3i voxelIndex(int linear) const {
+    return index * kTsdfBlockSide +
+           Eigen::Vector3i(linear & 7, (linear >> kTsdfBlockShift) & 7, linear >> 6);
+  }
+};
+
+namespace detail {
+constexpr int kBlockKeyBits = 21;
+constexpr std::uint64_t kBlockKeyMask = (std::uint64_t{1} << kBlockKeyBits) - 1;
+constexpr int kBlockKeyOffset = 1 << (kBlockKeyBits - 1);
+constexpr std::uint64_t kEmptyBlockKey = ~std::uint64_t{0};  // never a packed key
+/// splitmix64 finaliser: spreads the structured keys of neighbouring blocks over a table.
+inline std::uint64_t mixBlockKey(std::uint64_t k) {
+  k ^= k >> 31;
+  k *= 0x7fb5d329728ea185ull;
+  k ^= k >> 27;
+  k *= 0x81dadef4bc2dd44dull;
+  k ^= k >> 33;
+  return k;
+}
+}  // namespace detail
+
+/// True when every coordinate of `b` is in [-2^20, 2^20) (about ±58 km at 7 mm voxels).
+inline bool blockIndexInRange(const Eigen::Vector3i& b) {
+  const auto ok = [](int c) {
+    return c >= -detail::kBlockKeyOffset && c < detail::kBlockKeyOffset;
+  };
+  return ok(b.x()) && ok(b.y()) && ok(b.z());
+}
+
+/// Packs a block index into a 64-bit key (21 bits per axis). Requires blockIndexInRange(b).
+inline std::uint64_t packBlockKey(const Eigen::Vector3i& b) {
+  const auto part = [](int c) {
+    return static_cast<std::uint64_t>(static_cast<std::int64_t>(c) + detail::kBlockKeyOffset) &
+           detail::kBlockKeyMask;
+  };
+  return part(b.x()) | (part(b.y()) << detail::kBlockKeyBits) |
+         (part(b.z()) << (2 * detail::kBlockKeyBits));
+}
+
+/// Inverse of packBlockKey.
+inline Eigen::Vector3i unpackBlockKey(std::uint64_t key) {
+  const auto part = [&](int shift) {
+    return static_cast<int>((key >> shift) & detail::kBlockKeyMask) - detail::kBlockKeyOffset;
+  };
+  return Eigen::Vector3i(part(0), part(detail::kBlockKeyBits), part(2 * detail::kBlockKeyBits));
+}
+
+/// Open-addressing (linear probing) hash map from a packed 64-bit block key to a 32-bit value.
+/// Used by TsdfVolume for block lookup and by the fusion code as a fast key set. No erase.
+class BlockHashMap {
+ public:
+  static constexpr std::uint32_t kNotFound = 0xffffffffu;
+
+  /// The value stored for `key`, or kNotFound.
+  std::uint32_t find(std::uint64_t key) const {
+    if (keys_.empty()) return kNotFound;
+    for (std::size_t i = detail::mixBlockKey(key) & mask_;; i = (i + 1) & mask_) {
+      const std::uint64_t k = keys_[i];
+      if (k == key) return values_[i];
+      if (k == detail::kEmptyBlockKey) return kNotFound;
+    }
+  }
+  /// Inserts (key, value) unless present. Returns the stored value and whether it was inserted.
+  std::pair<std::uint32_t, bool> insert(std::uint64_t key, std::uint32_t value);
+  std::size_t size() const { return size_; }
+  /// Removes all entries, keeping the table's capacity.
+  void clear();
+  /// Makes room for `n` entries without rehashing.
+  void reserve(std::size_t n);
+  /// Bytes held by the table (keys and values arrays).
+  std::size_t memoryBytes() const;
+
+ private:
+  void rehash(std::size_t capacity);
+
+  std::vector<std::uint64_t> keys_;  // kEmpty marks a free slot
+  std::vector<std::uint32_t> values_;
+  std::size_t size_ = 0;
+  std::size_t mask_ = 0;
+};
+
+/// A sample of the TSDF at a continuous point.
+struct TsdfSample {
+  float sdf = 0.0f;           ///< m
+  float weight = 0.0f;        ///< interpolated weight (trilinear case) or the voxel's weight
+  bool interpolated = false;  ///< true: trilinear over 8 voxels; false: nearest voxel
+};
+
+/// A block-sparse TSDF volume in a plane's local frame. Deep-copyable and movable. Not
+/// thread-safe for concurrent modification; concurrent const access is safe.
+class TsdfVolume {
+ public:
+  /// Throws planesdf::Error unless voxel_size and truncation are positive and finite.
+  TsdfVolume(double voxel_size, double truncation);
+  /// Voxel size and truncation from `cfg` (cfg.voxel_size, cfg.truncation()).
+  explicit TsdfVolume(const Config& cfg);
+  TsdfVolume(const TsdfVolume& other);
+  TsdfVolume& operator=(const TsdfVolume& other);
+  TsdfVolume(TsdfVolume&&) noexcept = default;
+  TsdfVolume& operator=(TsdfVolume&&) noexcept = default;
+  ~TsdfVolume() = default;
+
+  double voxelSize() const { return voxel_size_; }
+  double truncation() const { return truncation_; }
+  /// Side of a block in metres (8 voxels).
+  double blockSize() const { return voxel_size_ * kTsdfBlockSide; }
+
+  // --- blocks ---------------------------------------------------------------------------------
+  /// Number of allocated blocks.
+  std::size_t numBlocks() const { return blocks_.size(); }
+  /// Number of allocated voxels (numBlocks() * 512).
+  std::size_t numVoxels() const { return blocks_.size() * kTsdfBlockVoxels; }
+  /// Number of voxels with weight > 0 (scans the volume).
+  std::size_t numObservedVoxels() const;
+  /// Everything the volume holds on the heap and in itself: voxels, block metadata, the block
+  /// pointer array, the hash table and an allowance for the allocator's per-block header.
+  std::size_t memoryBytes() const;
+
+  /// The block at `b`, or nullptr when it is not allocated.
+  const TsdfBlock* findBlock(const Eigen::Vector3i& b) const {
+    const std::ptrdiff_t slot = blockSlot(b);
+    return slot < 0 ? nullptr : blocks_[static_cast<std::size_t>(slot)].get();
+  }
+  TsdfBlock* findBlock(const Eigen::Vector3i& b) {
+    const std::ptrdiff_t slot = blockSlot(b);
+    return slot < 0 ? nullptr : blocks_[static_cast<std::size_t>(slot)].get();
+  }
+  /// The block at `b`, allocated (all voxels unobserved) when missing; `created` tells which.
+  /// Throws planesdf::Error when `b` is outside blockIndexInRange().
+  TsdfBlock& allocateBlock(const Eigen::Vector3i& b, bool* created = nullptr);
+  /// The slot of block `b` (its position in allocation order), or -1.
+  std::ptrdiff_t blockSlot(const Eigen::Vector3i& b) const {
+    if (!blockIndexInRange(b)) return -1;
+    const std::uint32_t slot = map_.find(packBlockKey(b));
+    return slot == BlockHashMap::kNotFound ? -1 : static_cast<std::ptrdiff_t>(slot);
+  }
+  /// Block by slot, slot in [0, numBlocks()). Slots follow allocation order and never change.
+  const TsdfBlock& block(std::size_t slot) const { return *blocks_[slot]; }
+  TsdfBlock& block(std::size_t slot) { return *blocks_[slot]; }
+  /// Calls f(const TsdfBlock&) for every block, in slot order.
+  template <class F>
+  void forEachBlock(F&& f) const {
+    for (const auto& b : blocks_) f(*b);
+  }
+  /// Indices of all allocated blocks, in slot order.
+  std::vector<Eigen::Vector3i> blockIndices() const;
+  /// Indices of the blocks whose revision is > `revision` (changed since that revision).
+  std::vector<Eigen::Vector3i> blocksChangedSince(std::uint64_t revision) const;
+  /// Inclusive range of allocated block indices; false (and unchanged outputs) when empty.
+  bool blockBounds(Eigen::Vector3i* lo, Eigen::Vector3i* hi) const;
+  /// Drops every block (revision increments when the volume was not empty).
+  void clear();
+
+  /// Calls f(const Eigen::Vector3i& global_voxel_index, const TsdfVoxel&) for each voxel of
+  /// `block` with weight > 0 and >= min_weight, in memory order (x fastest).
+  template <class F>
+  static void forEachObservedVoxel(const TsdfBlock& block, F&& f, float min_weight = 0.0f) {
+    const Eigen::Vector3i base = block.index * kTsdfBlockSide;
+    int i = 0;
+    for (int z = 0; z < kTsdfBlockSide; ++z)
+      for (int y = 0; y < kTsdfBlockSide; ++y)
+        for (int x = 0; x < kTsdfBlockSide; ++x, ++i) {
+          const TsdfVoxel& v = block.voxels[i];
+          if (v.weight > 0.0f && v.weight >= min_weight)
+            f(Eigen::Vector3i(base.x() + x, base.y() + y, base.z() + z), v);
+        }
+  }
+
+  // --- coordinates ----------------------------------------------------------------------------
+  /// The block holding global voxel `v` (floor division by 8).
+  static Eigen::Vector3i blockOfVoxel(const Eigen::Vector3i& v) {
+    // Arithmetic right shift (guaranteed by GCC/Clang, and by C++20) = floor division by 8.
+    return Eigen::Vector3i(v.x() >> kTsdfBlockShift, v.y() >> kTsdfBlockShift,
+                           v.z() >> kTsdfBlockShift);
+  }
+  /// Position of global voxel `v` inside its block's voxel array.
+  static int linearIndexInBlock(const Eigen::Vector3i& v) {
+    return (v.x() & 7) + ((v.y() & 7) << kTsdfBlockShift) + ((v.z() & 7) << 6);
+  }
+  /// Global index of the voxel containing local point `p`.
+  Eigen::Vector3i voxelIndexAt(const Eigen::Vector3d& p) const;
+  /// Index of the block containing local point `p`.
+  Eigen::Vector3i blockIndexAt(const Eigen::Vector3d& p) const;
+  /// Centre of global voxel `v` in local coordinates.
+  Eigen::Vector3d voxelCenter(const Eigen::Vector3i& v) const {
+    return (v.cast<double>().array() + 0.5).matrix() * voxel_size_;
+  }
+
+  // --- queries --------------------------------------------------------------------------------
+  /// The voxel with global index `v`, or nullptr when its block is not allocated.
+  const TsdfVoxel* voxel(const Eigen::Vector3i& v) const {
+    const TsdfBlock* b = findBlock(blockOfVoxel(v));
+    return b ? &b->voxels[linearIndexInBlock(v)] : nullptr;
+  }
+  TsdfVoxel* voxel(const Eigen::Vector3i& v) {
+    TsdfBlock* b = findBlock(blockOfVoxel(v));
+    return b ? &b->voxels[linearIndexInBlock(v)] : nullptr;
+  }
+  /// The TSDF at local point `p`: trilinear over the 8 surrounding voxel centres when all have
+  /// weight > 0 and >= min_weight, else the voxel containing `p` if it qualifies, else nullopt.
+  std::optional<TsdfSample> sample(const Eigen::Vector3d& p, float min_weight = 0.0f) const;
+
+  // --- change tracking ------------------------------------------------------------------------
+  /// Increments whenever an integration or clear() changes the volume.
+  std::uint64_t revision() const { return revision_; }
+  /// Increments the revision and returns the new value; for code that edits voxels directly
+  /// (e.g. a loader), which should also stamp the edited blocks' `revision` with it.
+  std::uint64_t bumpRevision() { return ++revision_; }
+
+ private:
+  double voxel_size_;
+  double truncation_;
+  std::vector<std::unique_ptr<TsdfBlock>> blocks_;
+  BlockHashMap map_;
+  Eigen::Vector3i lo_ = Eigen::Vector3i::Zero();
+  Eigen::Vector3i hi_ = Eigen::Vector3i::Constant(-1);
+  std::uint64_t revision_ = 0;
+};
+
+/// What one integration call did.
+struct IntegrationResult {
+  /// Blocks the call processed: for depth frames, every allocated block with at least one voxel
+  /// centre inside the camera frustum, the depth range [min_depth, max_depth] and the voxel band
+  /// (see integrateDepth); for splats, every block a splat reached. In slot order.
+  std::vector<Eigen::Vector3i> updated_blocks;
+  /// The subset of updated_blocks in which at least one voxel changed, in slot order.
+  std::vector<Eigen::Vector3i> changed_blocks;
+  /// Blocks allocated by this call, in packed-key order.
+  std::vector<Eigen::Vector3i> allocated_blocks;
+  std::size_t num_points_fused = 0;   ///< valid measurements inside the band
+  std::size_t num_voxel_updates = 0;  ///< voxel updates applied (surface and free space)
+  /// True when the volume changed (its revision was incremented).
+  bool changed() const { return !changed_blocks.empty() || !allocated_blocks.empty(); }
+};
+
+/// Fuses a depth frame into `vol` (projective TSDF with point-to-plane distances).
+///
+/// `T_local_camera` maps camera coordinates (OpenCV optical frame) into the volume's local frame
+/// (world-to-local * camera-to-world). The volume's own voxel size and truncation are used; from
+/// `cfg` come the band (below_band, fuse_band), the depth range, max_weight and threads.
+///
+/// 1. A pixel is a measurement when its depth d is finite and in [min_depth, max_depth]; others
+///    (0, NaN, inf, out of range) never update anything. Its point P is *in the band* when its
+///    height is in [-below_band, fuse_band]. Its surface normal comes from the depth gradient
+///    (central differences, one-sided at depth jumps).
+/// 2. Allocation: for each in-band point, the blocks crossed by its ray segment from the depth
+///    where the distance reaches +truncation in front of the surface to truncation (in depth)
+///    behind it, clipped to the voxel band, are allocated.
+/// 3. Update: only allocated blocks are visited, and within them only voxels whose centre lies in
+///    the voxel band h in [-below_band - trunc, fuse_band + trunc], has camera depth z in
+///    [min_depth, max_depth] and projects (nearest pixel) into the image. With q the voxel's
+///    depth difference to the pixel's tangent plane along the viewing direction (d - z on the
+///    pixel's own ray), sdf = cos(ray, normal) * q: the distance to the tangent plane, in metres.
+///    q < -trunc: untouched (occluded); sdf >= trunc: free space, fused as +trunc (any
+///    measurement carves, in band or not); otherwise fused only when P is in the band. Surfaces
+///    seen at more than 78 deg from their normal only carve (along the optical axis). Near
+///    silhouettes a voxel with sdf > half a voxel is skipped when a depth edge lies nearby in
+///    the image at most one truncation behind it, which removes the silhouette bias of
+///    projective fusion. Fusion is a running average with weight 1 per observation, capped at
+///    max_weight.
+///
+/// Candidate blocks are the allocated blocks of the frustum's local AABB (clipped to the band and
+/// to the volume's block bounds; enumerated cell by cell or by scanning the blocks, whichever is
+/// fewer), culled by their bounding sphere against the frustum planes; a block counts as updated
+/// when one of its voxel centres passes the per-voxel view test above (even if no measurement
+/// changes it). Parallel over blocks with OpenMP (cfg.threads, 0 = all cores); the result is
+/// bit-identical for any thread count.
+///
+/// Throws planesdf::Error on invalid intrinsics, a depth buffer of the wrong size or an invalid
+/// fusion configuration.
+IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
+                                 const Pose& T_local_camera, const Config& cfg);
+
+/// Least-squares pinhole intrinsics of an organised cloud (e.g. a 640x480 Kinect cloud): fits
+/// u = fx * x / z + cx and v = fy * y / z + cy over its valid points (in the sensor frame,
+/// i.e. after undoing cloud.sensor_pose), with (u, v) the pixel of each point in the grid.
+/// width/height are the cloud's. `rms_px`, when given, receives the RMS reprojection residual.
+/// Throws planesdf::Error when the cloud is not organised or has too few valid points (or they
+/// are degenerate, e.g. all in one column).
+Intrinsics estimateIntrinsics(const PointCloud& organized, double* rms_px = nullptr);
+
+/// The depth image of an organised cloud: each valid point's z in the sensor frame (after undoing
+/// cloud.sensor_pose), written at its own grid pixel; invalid points and z <= 0 give 0.
+/// Throws planesdf::Error unless the cloud is organised with the intrinsics' width and height.
+DepthFrame depthFromOrganizedCloud(const PointCloud& organized, const Intrinsics& intrinsics);
+
+/// Fuses an organised cloud as one depth frame seen from its sensor: `T_local_cloud` maps the
+/// cloud's frame into the volume's local frame, so the camera pose is T_local_cloud *
+/// cloud.sensor_pose. Intrinsics are estimated with estimateIntrinsics() unless given.
+IntegrationResult integrateOrganizedCloud(TsdfVolume& vol, const PointCloud& organized,
+                                          const Pose& T_local_cloud, const Config& cfg,
+                                          const Intrinsics* intrinsics = nullptr);
+
+/// Fuses an unorganised cloud with oriented normals (no sensor): each point p with unit normal
+/// n (pointing to free space, local frame) and height in [-below_band, fuse_band] updates the
+/// voxels whose centre v lies within the cylinder around p + t n, |t| <= truncation, of radius
+/// cfg.splat_radius_voxels voxels, with sdf = n . (v - p) and weight 1 (running average, capped
+/// at max_weight); voxels outside the voxel band are left alone. Points or normals that are
+/// non-finite or zero are skipped. Deterministic for any thread count.
+/// Throws planesdf::Error when the two arrays differ in length.
+IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
+                                             const std::vector<Eigen::Vector3f>& points_local,
+                                             const std::vector<Eigen::Vector3f>& normals_local,
+                                             const Config& cfg);
+
+}  // namespace planesdf

@@ -1,0 +1,1 @@
+set(PLANESDF_EVAL_SOURCES eval.cpp)

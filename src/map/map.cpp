@@ -1,0 +1,270 @@
+#include "planesdf/map.hpp"
+
+#include <chrono>
+#include <cmath>
+
+#include "map_internal.hpp"
+#include "planesdf/config_io.hpp"
+#include "planesdf/error.hpp"
+
+#include <unordered_map>
+
+namespace planesdf {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+/// World points of a depth frame, one per pixel (NaN where the depth is invalid).
+std::vector<Eigen::Vector3f> backProject(const DepthFrame& f, const Pose& camera_to_world) {
+  const Intrinsics& k = f.intrinsics;
+  const Eigen::Matrix3f R = camera_to_world.linear().cast<float>();
+  const Eigen::Vector3f t = camera_to_world.translation().cast<float>();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<Eigen::Vector3f> out(f.depth.size(), Eigen::Vector3f::Constant(nan));
+  const float ifx = static_cast<float>(1.0 / k.fx), ify = static_cast<float>(1.0 / k.fy);
+  const float cx = static_cast<float>(k.cx), cy = static_cast<float>(k.cy);
+  for (int v = 0; v < k.height; ++v)
+    for (int u = 0; u < k.width; ++u) {
+      const std::size_t i = static_cast<std::size_t>(v) * k.width + u;
+      const float d = f.depth[i];
+      if (!DepthFrame::isValidDepth(d)) continue;
+      out[i] = R * Eigen::Vector3f((u - cx) * d * ifx, (v - cy) * d * ify, d) + t;
+    }
+  return out;
+}
+
+std::vector<Eigen::Vector3f> transformPoints(const std::vector<Eigen::Vector3f>& pts,
+                                             const Pose& T) {
+  const Eigen::Matrix3f R = T.linear().cast<float>();
+  const Eigen::Vector3f t = T.translation().cast<float>();
+  std::vector<Eigen::Vector3f> out(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i) out[i] = R * pts[i] + t;  // NaN stays NaN
+  return out;
+}
+
+void checkFrame(const DepthFrame& frame) {
+  frame.intrinsics.validate("depth frame");
+  const std::size_t n = static_cast<std::size_t>(frame.intrinsics.width) * frame.intrinsics.height;
+  if (frame.depth.size() != n)
+    throw Error("depth frame", "holds " + std::to_string(frame.depth.size()) +
+                                   " depth values for a " + std::to_string(frame.intrinsics.width) +
+                                   "x" + std::to_string(frame.intrinsics.height) + " image");
+}
+
+/// Orients splat normals of an unorganised cloud without a sensor: toward the plane's free side
+/// where the surface faces up (|n·N| >= 0.5), else away from the centroid of the in-band points
+/// within 5 cm (so sides of convex objects face outward).
+void orientWithoutSensor(const Plane& plane, const std::vector<Eigen::Vector3f>& pts_local,
+                         std::vector<Eigen::Vector3f>& normals_local) {
+  const double cell = 0.05;
+  struct Acc {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    int n = 0;
+  };
+  std::unordered_map<std::uint64_t, Acc> cells;
+  auto key2 = [&](double u, double v) {
+    return (static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(u / cell)) + (1 << 30))
+            << 32) |
+           static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v / cell)) + (1 << 30));
+  };
+  for (const auto& p : pts_local) {
+    auto& a = cells[key2(p.x(), p.y())];
+    a.sum += p.cast<double>();
+    ++a.n;
+  }
+  (void)plane;
+  for (std::size_t i = 0; i < pts_local.size(); ++i) {
+    Eigen::Vector3f& n = normals_local[i];
+    if (std::abs(n.z()) >= 0.5f) {
+      if (n.z() < 0) n = -n;
+      continue;
+    }
+    const Eigen::Vector3f& p = pts_local[i];
+    Acc a;
+    const auto cu = static_cast<std::int64_t>(std::floor(p.x() / cell));
+    const auto cv = static_cast<std::int64_t>(std::floor(p.y() / cell));
+    for (std::int64_t du = -1; du <= 1; ++du)
+      for (std::int64_t dv = -1; dv <= 1; ++dv) {
+        auto it = cells.find(key2((cu + du + 0.5) * cell, (cv + dv + 0.5) * cell));
+        if (it == cells.end()) continue;
+        a.sum += it->second.sum;
+        a.n += it->second.n;
+      }
+    if (a.n == 0) continue;
+    const Eigen::Vector3f c = (a.sum / a.n).cast<float>();
+    Eigen::Vector2f d(p.x() - c.x(), p.y() - c.y());
+    if (n.head<2>().dot(d) < 0) n = -n;
+  }
+}
+
+}  // namespace
+
+Map::Map(const Config& cfg) : cfg_(cfg), tracker_(cfg) {
+  validateConfig(cfg_);
+}
+
+const PlaneSdf* Map::findPlane(int id) const {
+  return id >= 0 && static_cast<std::size_t>(id) < planes_.size() ? &planes_[id] : nullptr;
+}
+
+Eigen::Vector3d Map::up() const {
+  return tracker_.up().value_or(cfg_.up.normalized());
+}
+
+std::size_t Map::memoryBytes() const {
+  std::size_t b = points_.capacity() * sizeof(Eigen::Vector3f);
+  for (const auto& p : planes_) b += p.volume.memoryBytes();
+  return b;
+}
+
+void Map::syncPlanes(IntegrateStats& stats) {
+  const auto& tp = tracker_.planes();
+  for (std::size_t i = 0; i < tp.size(); ++i) {
+    if (i < planes_.size()) {
+      planes_[i].plane = tp[i];  // geometry may have been refined; the frame moves with it
+    } else {
+      planes_.push_back(PlaneSdf{tp[i], TsdfVolume(cfg_)});
+      stats.new_planes.push_back(tp[i].id);
+    }
+  }
+}
+
+void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) {
+  // Only points that can belong to an object are kept: above some plane by at least half the
+  // object threshold and inside its band (plane surfaces themselves never change).
+  const double h_lo = 0.5 * cfg_.h_obj;
+  const bool dedup = deduplicate && cfg_.point_cell > 0.0;
+  for (const auto& p : pts) {
+    if (!PointCloud::isValid(p)) continue;
+    bool keep = false;
+    for (const auto& ps : planes_) {
+      const double h = ps.plane.signedDistance(p.cast<double>());
+      if (h >= h_lo && h <= cfg_.fuse_band) {
+        keep = true;
+        break;
+      }
+    }
+    if (!keep) continue;
+    if (dedup && !point_cells_.insert(detail::cellKeyOf(p, cfg_.point_cell), 0).second) continue;
+    points_.push_back(p);
+  }
+}
+
+IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
+                              const std::vector<Eigen::Vector3f>& /*points_world*/) {
+  IntegrateStats stats;
+  for (auto& ps : planes_) {
+    const Pose T_local_camera = ps.plane.frame().inverse() * camera_to_world;
+    const IntegrationResult r = integrateDepth(ps.volume, frame, T_local_camera, cfg_);
+    if (!r.updated_blocks.empty()) stats.updated_planes.push_back(ps.plane.id);
+    if (r.changed()) stats.changed_planes.push_back(ps.plane.id);
+    stats.blocks_updated += r.updated_blocks.size();
+    stats.blocks_allocated += r.allocated_blocks.size();
+    stats.points_fused += r.num_points_fused;
+  }
+  return stats;
+}
+
+IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_world) {
+  const auto t0 = Clock::now();
+  checkFrame(frame);
+  const std::vector<Eigen::Vector3f> pts = backProject(frame, camera_to_world);
+  tracker_.integrate(pts, camera_to_world.translation());
+  IntegrateStats created;
+  syncPlanes(created);
+  IntegrateStats stats = fuseDepth(frame, camera_to_world, pts);
+  stats.new_planes = std::move(created.new_planes);
+  keepPoints(pts, true);
+  ++frames_;
+  stats.milliseconds = msSince(t0);
+  return stats;
+}
+
+namespace {
+
+/// Whole-cloud plane detection results as observations a PlaneTracker can merge.
+std::vector<PlaneObservation> observationsOf(const PlaneSegmentation& seg) {
+  std::vector<PlaneObservation> obs(seg.planes.size());
+  for (std::size_t i = 0; i < seg.planes.size(); ++i) {
+    obs[i].plane = seg.planes[i];
+    obs[i].plane.id = -1;
+  }
+  for (std::size_t p = 0; p < seg.labels.size(); ++p)
+    if (seg.labels[p] >= 0) obs[seg.labels[p]].inliers.push_back(static_cast<std::uint32_t>(p));
+  return obs;
+}
+
+}  // namespace
+
+IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
+                                   bool whole_cloud) {
+  const auto t0 = Clock::now();
+  cloud.validate("point cloud");
+  // The cloud in the world frame (positions, normals and sensor pose moved together).
+  PointCloud world;
+  world.points = transformPoints(cloud.points, cloud_to_world);
+  world.width = cloud.width;
+  world.height = cloud.height;
+  world.sensor_pose = cloud_to_world * cloud.sensor_pose;
+
+  IntegrateStats created;
+  if (whole_cloud || !cloud.isOrganized()) {
+    tracker_.merge(observationsOf(segmentPlanes(world, cfg_)), world.points);
+  } else {
+    tracker_.integrate(world.points, world.sensor_pose.translation());
+  }
+  syncPlanes(created);
+
+  IntegrateStats stats;
+  if (cloud.isOrganized()) {
+    const Intrinsics k = estimateIntrinsics(cloud);
+    const DepthFrame depth = depthFromOrganizedCloud(cloud, k);
+    stats = fuseDepth(depth, world.sensor_pose, world.points);
+  } else {
+    // No pixel grid: splat each point along its PCA normal.
+    const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);
+    const bool has_sensor = sensorOrigin(world).has_value();
+    for (auto& ps : planes_) {
+      const Pose to_local = ps.plane.frame().inverse();
+      const Eigen::Matrix3f R = to_local.linear().cast<float>();
+      const Eigen::Vector3f t = to_local.translation().cast<float>();
+      std::vector<Eigen::Vector3f> p_local, n_local;
+      for (std::size_t i = 0; i < world.points.size(); ++i) {
+        if (!world.isValid(i) || !normals[i].allFinite()) continue;
+        const Eigen::Vector3f q = R * world.points[i] + t;
+        if (q.z() < -cfg_.below_band || q.z() > cfg_.fuse_band) continue;
+        p_local.push_back(q);
+        n_local.push_back(R * normals[i]);
+      }
+      if (p_local.empty()) continue;
+      if (!has_sensor) orientWithoutSensor(ps.plane, p_local, n_local);
+      const IntegrationResult r = integratePointsWithNormals(ps.volume, p_local, n_local, cfg_);
+      if (!r.updated_blocks.empty()) stats.updated_planes.push_back(ps.plane.id);
+      if (r.changed()) stats.changed_planes.push_back(ps.plane.id);
+      stats.blocks_updated += r.updated_blocks.size();
+      stats.blocks_allocated += r.allocated_blocks.size();
+      stats.points_fused += r.num_points_fused;
+    }
+  }
+  stats.new_planes = std::move(created.new_planes);
+  keepPoints(world.points, !whole_cloud);
+  ++frames_;
+  stats.milliseconds = msSince(t0);
+  return stats;
+}
+
+IntegrateStats Map::integrate(const PointCloud& cloud, const Pose& cloud_to_world) {
+  return integrateCloud(cloud, cloud_to_world, false);
+}
+
+Map Map::fromCloud(const PointCloud& world, const Config& cfg) {
+  Map m(cfg);
+  m.integrateCloud(world, Pose::Identity(), true);
+  return m;
+}
+
+}  // namespace planesdf

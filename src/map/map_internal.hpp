@@ -1,0 +1,20 @@
+#pragma once
+// Internal helpers shared by map.cpp and map_io.cpp.
+#include <Eigen/Core>
+
+#include <cmath>
+#include <cstdint>
+
+namespace planesdf::detail {
+
+/// Key of the cube of side `cell` holding `p` (21 bits per axis, wraps beyond ±7 km at 3.5 mm).
+inline std::uint64_t cellKeyOf(const Eigen::Vector3f& p, double cell) {
+  auto q = [&](float x) {
+    return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(x / cell)) +
+                                      (std::int64_t{1} << 20)) &
+           0x1fffffu;
+  };
+  return q(p.x()) | (q(p.y()) << 21) | (q(p.z()) << 42);
+}
+
+}  // namespace planesdf::detail

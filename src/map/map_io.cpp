@@ -1,0 +1,247 @@
+// Map save/load: a versioned little-endian binary format.
+//
+//   header  : magic "PSDFMAP\0" (8 bytes), u32 format version, u32 reserved (0),
+//             u64 payload size
+//   payload : config as JSON (u32 length + bytes), u64 frames, u8 has_up + 3 f64 up,
+//             u32 plane count, then per plane: i32 id, 3 f64 normal, f64 offset,
+//             u8 orientation, u64 support, u8 extent_empty + 4 f64 extent (min u, min v,
+//             max u, max v), 3 f64 frame origin, 9 f64 frame axes (column-major),
+//             f64 voxel size, f64 truncation, u32 block count, per block 3 i32 index +
+//             512 x (f32 sdf, f32 weight); u64 point count + 3 f32 per point
+//   trailer : u64 FNV-1a checksum of the payload
+//
+// Every count is checked against the bytes left before anything is allocated.
+#include <cstring>
+#include <type_traits>
+
+#include "map_internal.hpp"
+#include "planesdf/config_io.hpp"
+#include "planesdf/error.hpp"
+#include "planesdf/io/atomic_file.hpp"
+#include "planesdf/map.hpp"
+
+namespace planesdf {
+namespace {
+
+constexpr char kMagic[8] = {'P', 'S', 'D', 'F', 'M', 'A', 'P', '\0'};
+constexpr std::uint32_t kVersion = 1;
+constexpr std::size_t kHeaderSize = 8 + 4 + 4 + 8;
+constexpr std::size_t kBlockBytes = 3 * 4 + kTsdfBlockVoxels * 8;
+
+std::uint64_t fnv1a(const char* data, std::size_t n) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= static_cast<unsigned char>(data[i]);
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+class Writer {
+ public:
+  template <class T>
+  void put(T v) {
+    static_assert(std::is_trivially_copyable_v<T>);
+    const std::size_t at = out.size();
+    out.resize(at + sizeof(T));
+    std::memcpy(&out[at], &v, sizeof(T));
+  }
+  void putVec(const Eigen::Vector3d& v) {
+    for (int i = 0; i < 3; ++i) put<double>(v[i]);
+  }
+  void putBytes(const void* p, std::size_t n) { out.append(static_cast<const char*>(p), n); }
+  std::string out;
+};
+
+class Reader {
+ public:
+  Reader(const std::string& bytes, std::size_t begin, std::size_t end, const std::string& name)
+      : b_(bytes), pos_(begin), end_(end), name_(name) {}
+  template <class T>
+  T get(const char* what) {
+    need(sizeof(T), what);
+    T v;
+    std::memcpy(&v, &b_[pos_], sizeof(T));
+    pos_ += sizeof(T);
+    return v;
+  }
+  Eigen::Vector3d getVec(const char* what) {
+    Eigen::Vector3d v;
+    for (int i = 0; i < 3; ++i) v[i] = get<double>(what);
+    return v;
+  }
+  const char* take(std::size_t n, const char* what) {
+    need(n, what);
+    const char* p = &b_[pos_];
+    pos_ += n;
+    return p;
+  }
+  /// Throws unless `count` items of `item_bytes` each fit in what is left.
+  void needItems(std::uint64_t count, std::size_t item_bytes, const char* what) {
+    if (item_bytes > 0 && count > (end_ - pos_) / item_bytes)
+      fail(std::string(what) + " count " + std::to_string(count) + " exceeds the file size");
+  }
+  std::size_t remaining() const { return end_ - pos_; }
+  [[noreturn]] void fail(const std::string& msg) const {
+    throw Error(name_, "corrupt map: " + msg + " (at byte " + std::to_string(pos_) + ")");
+  }
+
+ private:
+  void need(std::size_t n, const char* what) {
+    if (end_ - pos_ < n) fail(std::string("truncated while reading ") + what);
+  }
+  const std::string& b_;
+  std::size_t pos_, end_;
+  const std::string& name_;
+};
+
+}  // namespace
+
+std::string Map::serialize() const {
+  Writer w;
+  std::size_t blocks = 0;
+  for (const auto& ps : planes_) blocks += ps.volume.numBlocks();
+  w.out.reserve(4096 + planes_.size() * 256 + blocks * kBlockBytes + points_.size() * 12);
+  const std::string cfg_json = configToJson(cfg_);
+  w.put<std::uint32_t>(static_cast<std::uint32_t>(cfg_json.size()));
+  w.putBytes(cfg_json.data(), cfg_json.size());
+  w.put<std::uint64_t>(frames_);
+  const auto up = tracker_.up();
+  w.put<std::uint8_t>(up ? 1 : 0);
+  w.putVec(up.value_or(Eigen::Vector3d::Zero()));
+  w.put<std::uint32_t>(static_cast<std::uint32_t>(planes_.size()));
+  for (const PlaneSdf& ps : planes_) {
+    const Plane& p = ps.plane;
+    w.put<std::int32_t>(p.id);
+    w.putVec(p.normal);
+    w.put<double>(p.offset);
+    w.put<std::uint8_t>(p.orientation == Plane::Orientation::Horizontal ? 0 : 1);
+    w.put<std::uint64_t>(p.support);
+    w.put<std::uint8_t>(p.extent.isEmpty() ? 1 : 0);
+    for (int i = 0; i < 2; ++i) w.put<double>(p.extent.min()[i]);
+    for (int i = 0; i < 2; ++i) w.put<double>(p.extent.max()[i]);
+    w.putVec(p.frame_origin);
+    for (int i = 0; i < 9; ++i) w.put<double>(p.frame_axes.data()[i]);
+    w.put<double>(ps.volume.voxelSize());
+    w.put<double>(ps.volume.truncation());
+    w.put<std::uint32_t>(static_cast<std::uint32_t>(ps.volume.numBlocks()));
+    ps.volume.forEachBlock([&](const TsdfBlock& b) {
+      for (int i = 0; i < 3; ++i) w.put<std::int32_t>(b.index[i]);
+      w.putBytes(b.voxels.data(), sizeof(TsdfVoxel) * kTsdfBlockVoxels);
+    });
+  }
+  w.put<std::uint64_t>(points_.size());
+  std::vector<float> xyz(points_.size() * 3);
+  for (std::size_t i = 0; i < points_.size(); ++i)
+    for (int k = 0; k < 3; ++k) xyz[3 * i + k] = points_[i][k];
+  w.putBytes(xyz.data(), xyz.size() * sizeof(float));
+
+  Writer file;
+  file.putBytes(kMagic, sizeof(kMagic));
+  file.put<std::uint32_t>(kVersion);
+  file.put<std::uint32_t>(0);
+  file.put<std::uint64_t>(w.out.size());
+  file.out += w.out;
+  file.put<std::uint64_t>(fnv1a(w.out.data(), w.out.size()));
+  return std::move(file.out);
+}
+
+Map Map::deserialize(const std::string& bytes, const std::string& name) {
+  if (bytes.size() < kHeaderSize + 8 || std::memcmp(bytes.data(), kMagic, sizeof(kMagic)) != 0)
+    throw Error(name, "not a planesdf map (no PSDFMAP header)");
+  Reader head(bytes, 8, kHeaderSize, name);
+  const auto version = head.get<std::uint32_t>("version");
+  if (version != kVersion)
+    throw Error(name, "map format version " + std::to_string(version) +
+                          " is not supported (this build reads version " +
+                          std::to_string(kVersion) + ")");
+  head.get<std::uint32_t>("reserved");
+  const auto payload = head.get<std::uint64_t>("payload size");
+  if (payload != bytes.size() - kHeaderSize - 8)
+    throw Error(name, "corrupt map: header declares " + std::to_string(payload) +
+                          " payload bytes, the file holds " +
+                          std::to_string(bytes.size() - kHeaderSize - 8) + " (truncated?)");
+  std::uint64_t stored = 0;
+  std::memcpy(&stored, &bytes[bytes.size() - 8], 8);
+  if (stored != fnv1a(&bytes[kHeaderSize], payload))
+    throw Error(name, "corrupt map: checksum mismatch");
+
+  Reader r(bytes, kHeaderSize, kHeaderSize + payload, name);
+  const auto cfg_len = r.get<std::uint32_t>("config length");
+  r.needItems(cfg_len, 1, "config");
+  const std::string cfg_json(r.take(cfg_len, "config"), cfg_len);
+  const Config cfg = parseConfigJson(cfg_json, name + " (embedded config)");
+  Map m(cfg);
+  m.frames_ = r.get<std::uint64_t>("frames");
+  const bool has_up = r.get<std::uint8_t>("up flag") != 0;
+  const Eigen::Vector3d up = r.getVec("up");
+
+  const auto n_planes = r.get<std::uint32_t>("plane count");
+  r.needItems(n_planes, 4 + 8 * 4 + 1 + 8 + 1 + 8 * 4 + 8 * 12 + 8 * 2 + 4, "plane");
+  std::vector<Plane> planes;
+  for (std::uint32_t i = 0; i < n_planes; ++i) {
+    Plane p;
+    p.id = r.get<std::int32_t>("plane id");
+    if (p.id != static_cast<std::int32_t>(i)) r.fail("plane ids are not 0..n-1");
+    p.normal = r.getVec("plane normal");
+    p.offset = r.get<double>("plane offset");
+    p.orientation = r.get<std::uint8_t>("orientation") == 0 ? Plane::Orientation::Horizontal
+                                                            : Plane::Orientation::Vertical;
+    p.support = r.get<std::uint64_t>("support");
+    const bool empty = r.get<std::uint8_t>("extent flag") != 0;
+    Eigen::Vector2d lo, hi;
+    for (int k = 0; k < 2; ++k) lo[k] = r.get<double>("extent");
+    for (int k = 0; k < 2; ++k) hi[k] = r.get<double>("extent");
+    p.extent = empty ? Eigen::AlignedBox2d() : Eigen::AlignedBox2d(lo, hi);
+    p.frame_origin = r.getVec("frame origin");
+    for (int k = 0; k < 9; ++k) p.frame_axes.data()[k] = r.get<double>("frame axes");
+    if (!p.normal.allFinite() || std::abs(p.normal.norm() - 1.0) > 1e-6 ||
+        !p.frame_axes.allFinite())
+      r.fail("plane " + std::to_string(i) + " has an invalid normal or frame");
+    const double voxel = r.get<double>("voxel size");
+    const double trunc = r.get<double>("truncation");
+    if (!(voxel > 0.0 && std::isfinite(voxel) && trunc > 0.0 && std::isfinite(trunc)))
+      r.fail("plane " + std::to_string(i) + " has an invalid voxel size or truncation");
+    TsdfVolume vol(voxel, trunc);
+    const auto n_blocks = r.get<std::uint32_t>("block count");
+    r.needItems(n_blocks, kBlockBytes, "block");
+    for (std::uint32_t b = 0; b < n_blocks; ++b) {
+      Eigen::Vector3i idx;
+      for (int k = 0; k < 3; ++k) idx[k] = r.get<std::int32_t>("block index");
+      if (!blockIndexInRange(idx)) r.fail("block index out of range");
+      bool created = false;
+      TsdfBlock& blk = vol.allocateBlock(idx, &created);
+      if (!created) r.fail("duplicate block");
+      std::memcpy(blk.voxels.data(), r.take(sizeof(TsdfVoxel) * kTsdfBlockVoxels, "voxels"),
+                  sizeof(TsdfVoxel) * kTsdfBlockVoxels);
+    }
+    planes.push_back(p);
+    m.planes_.push_back(PlaneSdf{std::move(p), std::move(vol)});
+  }
+  const auto n_points = r.get<std::uint64_t>("point count");
+  r.needItems(n_points, 12, "point");
+  std::vector<float> xyz(n_points * 3);
+  if (n_points > 0) std::memcpy(xyz.data(), r.take(n_points * 12, "points"), n_points * 12);
+  m.points_.resize(n_points);
+  for (std::size_t i = 0; i < n_points; ++i)
+    m.points_[i] = Eigen::Vector3f(xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]);
+  if (r.remaining() != 0) r.fail("unexpected bytes after the points");
+  m.tracker_.restore(std::move(planes), has_up ? std::optional<Eigen::Vector3d>(up) : std::nullopt);
+  if (m.cfg_.point_cell > 0.0)
+    for (const auto& p : m.points_)
+      m.point_cells_.insert(detail::cellKeyOf(p, m.cfg_.point_cell), 0);
+  return m;
+}
+
+void Map::save(const std::string& path) const {
+  const std::string bytes = serialize();
+  io::writeFileAtomic(path, [&](std::ostream& o) {
+    o.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  });
+}
+
+Map Map::load(const std::string& path) {
+  return deserialize(io::readFile(path), path);
+}
+
+}  // namespace planesdf

@@ -1,0 +1,1 @@
+set(PLANESDF_MAP_SOURCES map.cpp map_io.cpp)

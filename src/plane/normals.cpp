@@ -1,0 +1,310 @@
+// PCA normals: k nearest neighbours (hash grid) for unorganised clouds, integral-image windows
+// for organised clouds.
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+#include "knn_grid.hpp"
+#include "plane_internal.hpp"
+#include "planesdf/plane.hpp"
+
+namespace planesdf {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+const Eigen::Vector3f kNaNNormal(kNaN, kNaN, kNaN);
+
+// Normal (smallest eigenvector) and surface variation of a covariance matrix.
+bool normalFromCovariance(const Eigen::Matrix3d& cov, Eigen::Vector3f& normal, float& curvature) {
+  const double trace = cov.trace();
+  if (!(trace > 0.0) || !std::isfinite(trace)) return false;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+  es.computeDirect(cov);
+  const Eigen::Vector3d n = es.eigenvectors().col(0);
+  if (!n.allFinite() || n.norm() < 0.5) return false;
+  normal = n.normalized().cast<float>();
+  curvature = static_cast<float>(std::max(0.0, es.eigenvalues()(0)) / trace);
+  return true;
+}
+
+void orientNormals(const std::vector<Eigen::Vector3f>& points, const Eigen::Vector3d& sensor,
+                   std::vector<Eigen::Vector3f>& normals) {
+  const auto sx = static_cast<float>(sensor.x()), sy = static_cast<float>(sensor.y()),
+             sz = static_cast<float>(sensor.z());
+  const float* p = detail::xyzData(points);
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    float* n = normals[i].data();
+    // NaN normals compare false and stay NaN.
+    if (n[0] * (sx - p[3 * i]) + n[1] * (sy - p[3 * i + 1]) + n[2] * (sz - p[3 * i + 2]) < 0.0f) {
+      n[0] = -n[0];
+      n[1] = -n[1];
+      n[2] = -n[2];
+    }
+  }
+}
+
+// Covariance of points[neighbours].
+Eigen::Matrix3d neighbourCovariance(const std::vector<Eigen::Vector3f>& points,
+                                    const std::vector<std::pair<float, std::uint32_t>>& nb) {
+  const float* xyz = detail::xyzData(points);
+  const double inv = 1.0 / static_cast<double>(nb.size());
+  double mx = 0, my = 0, mz = 0;
+  for (const auto& e : nb) {
+    mx += xyz[3 * e.second];
+    my += xyz[3 * e.second + 1];
+    mz += xyz[3 * e.second + 2];
+  }
+  mx *= inv;
+  my *= inv;
+  mz *= inv;
+  double xx = 0, xy = 0, xz = 0, yy = 0, yz = 0, zz = 0;
+  for (const auto& e : nb) {
+    const double x = xyz[3 * e.second] - mx;
+    const double y = xyz[3 * e.second + 1] - my;
+    const double z = xyz[3 * e.second + 2] - mz;
+    xx += x * x;
+    xy += x * y;
+    xz += x * z;
+    yy += y * y;
+    yz += y * z;
+    zz += z * z;
+  }
+  Eigen::Matrix3d cov;
+  cov << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+  return cov * inv;
+}
+
+// Candidate neighbours of one grid cell, copied contiguously so distances vectorise.
+struct Candidates {
+  std::vector<std::uint32_t> index;
+  std::vector<float> x, y, z, d2;
+
+  void load(const std::vector<Eigen::Vector3f>& points) {
+    const std::size_t n = index.size();
+    x.resize(n);
+    y.resize(n);
+    z.resize(n);
+    d2.resize(n);
+    const float* xyz = detail::xyzData(points);
+    for (std::size_t j = 0; j < n; ++j) {
+      x[j] = xyz[3 * index[j]];
+      y[j] = xyz[3 * index[j] + 1];
+      z[j] = xyz[3 * index[j] + 2];
+    }
+  }
+
+  // The k nearest within squared distance `bound2` of q into `out`; false when fewer than k.
+  bool nearest(const float* q, int k, float bound2,
+               std::vector<std::pair<float, std::uint32_t>>& out) {
+    const std::size_t n = index.size();
+    const float qx = q[0], qy = q[1], qz = q[2];
+    for (std::size_t j = 0; j < n; ++j) {
+      const float dx = x[j] - qx;
+      const float dy = y[j] - qy;
+      const float dz = z[j] - qz;
+      d2[j] = dx * dx + dy * dy + dz * dz;
+    }
+    out.clear();
+    for (std::size_t j = 0; j < n; ++j) {
+      if (d2[j] <= bound2) out.emplace_back(d2[j], index[j]);
+    }
+    const auto kk = static_cast<std::size_t>(k);
+    if (out.size() < kk) return false;
+    std::nth_element(out.begin(), out.begin() + (kk - 1), out.end());
+    out.resize(kk);
+    return true;
+  }
+};
+
+void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int threads,
+                std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature) {
+  const std::vector<std::uint32_t> valid = detail::validIndices(points);
+  if (valid.size() < 3) return;
+  const int k =
+      static_cast<int>(std::min<std::size_t>(static_cast<std::size_t>(knn), valid.size()));
+  const detail::KnnGrid grid(points, valid, detail::KnnGrid::suggestCell(points, valid, k));
+  const auto reach2 = static_cast<float>(grid.cell() * grid.cell());
+  const auto cells = static_cast<long long>(grid.cellCount());
+  const float* xyz = detail::xyzData(points);
+#pragma omp parallel num_threads(threads)
+  {
+    Candidates cand;
+    std::vector<std::uint32_t> scratch;
+    std::vector<std::pair<float, std::uint32_t>> nb;
+#pragma omp for schedule(dynamic, 32)
+    for (long long c = 0; c < cells; ++c) {
+      const auto cell = static_cast<std::size_t>(c);
+      cand.index.clear();
+      grid.gatherAround(cell, 1, cand.index);
+      cand.load(points);
+      for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell); ++it) {
+        if (!cand.nearest(xyz + 3 * *it, k, reach2, nb)) grid.knn(*it, cell, k, 4, nb, scratch);
+        if (nb.size() < 3) continue;
+        normalFromCovariance(neighbourCovariance(points, nb), normals[*it], curvature[*it]);
+      }
+    }
+  }
+}
+
+// --- organised clouds ----------------------------------------------------------------------------
+
+constexpr int kChannels = 10;  // n, x, y, z, xx, xy, xz, yy, yz, zz
+
+// Summed-area table of the moments of the valid points (centred on `centre`), (H+1) x (W+1).
+std::vector<double> momentIntegral(const PointCloud& cloud, const Eigen::Vector3d& centre,
+                                   int threads) {
+  const int w = static_cast<int>(cloud.width);
+  const int h = static_cast<int>(cloud.height);
+  const std::size_t stride = static_cast<std::size_t>(w + 1) * kChannels;
+  std::vector<double> s(stride * static_cast<std::size_t>(h + 1), 0.0);
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int r = 0; r < h; ++r) {
+    double acc[kChannels] = {0};
+    double* row = s.data() + stride * static_cast<std::size_t>(r + 1);
+    for (int c = 0; c < w; ++c) {
+      const float* pf = detail::xyzData(cloud.points) + 3 * (static_cast<std::size_t>(r) * w + c);
+      if (detail::finite3(pf)) {
+        const double x = pf[0] - centre.x();
+        const double y = pf[1] - centre.y();
+        const double z = pf[2] - centre.z();
+        const double v[kChannels] = {1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z};
+        for (int k = 0; k < kChannels; ++k) acc[k] += v[k];
+      }
+      double* cell = row + static_cast<std::size_t>(c + 1) * kChannels;
+      for (int k = 0; k < kChannels; ++k) cell[k] = acc[k];
+    }
+  }
+  // Column pass, row after row so the inner loop is contiguous; threads split the columns.
+  constexpr std::size_t kChunk = 1024;
+  const auto chunks = static_cast<long long>((stride + kChunk - 1) / kChunk);
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (long long k = 0; k < chunks; ++k) {
+    const std::size_t j0 = static_cast<std::size_t>(k) * kChunk;
+    const std::size_t j1 = std::min(stride, j0 + kChunk);
+    for (int r = 1; r <= h; ++r) {
+      double* row = s.data() + stride * static_cast<std::size_t>(r);
+      const double* above = row - stride;
+      for (std::size_t j = j0; j < j1; ++j) row[j] += above[j];
+    }
+  }
+  return s;
+}
+
+// Median angular spacing between horizontally adjacent pixels (range-relative), so that a window
+// of `m` metres at range ρ spans about m / (ρ * pitch) pixels.
+double angularPitch(const PointCloud& cloud, const Eigen::Vector3d& sensor) {
+  const int w = static_cast<int>(cloud.width);
+  const int h = static_cast<int>(cloud.height);
+  std::vector<double> ratios;
+  for (int r = 0; r < h; r += 7) {
+    for (int c = 0; c + 1 < w; c += 3) {
+      const Eigen::Vector3f& a = cloud.points[static_cast<std::size_t>(r) * w + c];
+      const Eigen::Vector3f& b = cloud.points[static_cast<std::size_t>(r) * w + c + 1];
+      if (!a.allFinite() || !b.allFinite()) continue;
+      const double ra = (a.cast<double>() - sensor).norm();
+      const double rb = (b.cast<double>() - sensor).norm();
+      if (!(ra > 1e-6) || std::abs(ra - rb) > 0.02 * ra) continue;
+      ratios.push_back((a - b).cast<double>().norm() / ra);
+    }
+  }
+  if (ratios.empty()) return 1.0 / 525.0;
+  auto mid = ratios.begin() + static_cast<std::ptrdiff_t>(ratios.size() / 2);
+  std::nth_element(ratios.begin(), mid, ratios.end());
+  return std::max(*mid, 1e-5);
+}
+
+// Normals of the pixels on a grid of `stride`; each is copied to the valid pixels of its
+// stride x stride block (the window is several pixels wide, so this changes little).
+void windowNormals(const PointCloud& cloud, const Config& cfg, int threads, int stride,
+                   std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature) {
+  const int w = static_cast<int>(cloud.width);
+  const int h = static_cast<int>(cloud.height);
+  const std::vector<std::uint32_t> valid = detail::validIndices(cloud.points);
+  if (valid.size() < 3) return;
+  const Eigen::Vector3d centre = detail::centroidOf(cloud.points, valid);
+  const Eigen::Vector3d sensor = cloud.sensor_pose.translation();
+  const std::vector<double> s = momentIntegral(cloud, centre, threads);
+  const double pitch = angularPitch(cloud, sensor);
+  const int r_min = std::max(1, static_cast<int>(std::ceil((std::sqrt(cfg.normal_knn) - 1.0) / 2)));
+  const int r_max = std::max(r_min, 25);
+  const double min_count = std::max(3.0, 0.5 * cfg.normal_knn);
+  const std::size_t row_len = static_cast<std::size_t>(w + 1) * kChannels;
+  auto at = [&](int r, int c) {
+    return s.data() + row_len * r + static_cast<std::size_t>(c) * kChannels;
+  };
+  const float* xyz = detail::xyzData(cloud.points);
+  const int rows = (h + stride - 1) / stride;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
+  for (int rs = 0; rs < rows; ++rs) {
+    const int r = rs * stride;
+    for (int c = 0; c < w; c += stride) {
+      const std::size_t i = static_cast<std::size_t>(r) * w + c;
+      const float* p = xyz + 3 * i;
+      if (!detail::finite3(p)) continue;
+      const double rx = p[0] - sensor.x(), ry = p[1] - sensor.y(), rz = p[2] - sensor.z();
+      const double range = std::sqrt(rx * rx + ry * ry + rz * rz);
+      const double want = cfg.normal_window / (2.0 * std::max(range, 1e-6) * pitch);
+      const int rad = std::clamp(static_cast<int>(std::lround(want)), r_min, r_max);
+      const int r0 = std::max(0, r - rad);
+      const int r1 = std::min(h, r + rad + 1);
+      const int c0 = std::max(0, c - rad);
+      const int c1 = std::min(w, c + rad + 1);
+      const double* a = at(r1, c1);
+      const double* b = at(r0, c1);
+      const double* d = at(r1, c0);
+      const double* e = at(r0, c0);
+      double m[kChannels];
+      for (int k = 0; k < kChannels; ++k) m[k] = a[k] - b[k] - d[k] + e[k];
+      const double n = m[0];
+      const double area = static_cast<double>(r1 - r0) * (c1 - c0);  // clipped at the border
+      if (n < std::max(3.0, std::min(min_count, 0.5 * area))) continue;
+      const double mx = m[1] / n, my = m[2] / n, mz = m[3] / n;
+      const double xx = m[4] / n - mx * mx, xy = m[5] / n - mx * my, xz = m[6] / n - mx * mz;
+      const double yy = m[7] / n - my * my, yz = m[8] / n - my * mz, zz = m[9] / n - mz * mz;
+      Eigen::Matrix3d cov;
+      cov << xx, xy, xz, xy, yy, yz, xz, yz, zz;
+      if (!normalFromCovariance(cov, normals[i], curvature[i]) || stride == 1) continue;
+      for (int rr = r; rr < std::min(h, r + stride); ++rr) {
+        for (int cc = c; cc < std::min(w, c + stride); ++cc) {
+          const std::size_t j = static_cast<std::size_t>(rr) * w + cc;
+          if (j == i || !detail::finite3(xyz + 3 * j)) continue;
+          normals[j] = normals[i];
+          curvature[j] = curvature[i];
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3f> estimateNormals(const PointCloud& cloud, const Config& cfg,
+                                             std::vector<float>* curvature) {
+  validatePlaneConfig(cfg);
+  cloud.validate("point cloud");
+  return detail::estimateNormalsStrided(cloud, cfg, 1, curvature);
+}
+
+namespace detail {
+
+std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, const Config& cfg,
+                                                    int stride, std::vector<float>* curvature) {
+  std::vector<Eigen::Vector3f> normals(cloud.size(), kNaNNormal);
+  std::vector<float> curv(cloud.size(), kNaN);
+  const int threads = ompThreads(cfg);
+  if (cloud.isOrganized()) {
+    windowNormals(cloud, cfg, threads, std::max(1, stride), normals, curv);
+  } else {
+    knnNormals(cloud.points, cfg.normal_knn, threads, normals, curv);
+  }
+  if (const auto sensor = sensorOrigin(cloud)) orientNormals(cloud.points, *sensor, normals);
+  if (curvature) *curvature = std::move(curv);
+  return normals;
+}
+
+}  // namespace detail
+}  // namespace planesdf

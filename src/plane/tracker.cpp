@@ -1,0 +1,175 @@
+// PlaneTracker: merges per-frame RANSAC planes into global planes with stable ids.
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "plane_internal.hpp"
+#include "planesdf/error.hpp"
+#include "planesdf/plane.hpp"
+#include "ransac.hpp"
+
+namespace planesdf {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr std::size_t kMatchSample = 1000;  // inliers projected to test extent overlap
+
+// Euclidean gap between two boxes (0 when they overlap); +inf when either is empty.
+double boxGap(const Eigen::AlignedBox2d& a, const Eigen::AlignedBox2d& b) {
+  if (a.isEmpty() || b.isEmpty()) return std::numeric_limits<double>::infinity();
+  const Eigen::Vector2d gap =
+      (a.min() - b.max()).cwiseMax(b.min() - a.max()).cwiseMax(Eigen::Vector2d::Zero());
+  return gap.norm();
+}
+
+}  // namespace
+
+PlaneTracker::PlaneTracker(const Config& cfg) : cfg_(cfg) {
+  validatePlaneConfig(cfg_);
+  if (!cfg_.up_auto) up_ = cfg_.up.normalized();
+}
+
+const Plane* PlaneTracker::plane(int id) const {
+  if (id < 0 || static_cast<std::size_t>(id) >= planes_.size()) return nullptr;
+  return &planes_[static_cast<std::size_t>(id)];
+}
+
+std::size_t PlaneTracker::reservoirSize(int id) const {
+  return plane(id) ? tracks_[static_cast<std::size_t>(id)].reservoir.size() : 0;
+}
+
+int PlaneTracker::refinementCount(int id) const {
+  return plane(id) ? tracks_[static_cast<std::size_t>(id)].refinements : 0;
+}
+
+std::vector<int> PlaneTracker::integrate(const std::vector<Eigen::Vector3f>& points_world,
+                                         const Eigen::Vector3d& sensor_origin) {
+  std::vector<PlaneObservation> all = detail::ransacFramePlanes(points_world, sensor_origin, cfg_);
+  if (!up_) {
+    if (all.empty()) return {};
+    up_ = all.front().plane.normal;  // largest plane, normal toward the sensor
+  }
+  return merge(detail::finishObservations(std::move(all), points_world, *up_, cfg_), points_world);
+}
+
+std::vector<int> PlaneTracker::merge(const std::vector<PlaneObservation>& observations,
+                                     const std::vector<Eigen::Vector3f>& points_world) {
+  std::vector<int> ids;
+  for (const PlaneObservation& obs : observations) {
+    if (obs.inliers.empty()) {
+      ids.push_back(-1);
+      continue;
+    }
+    // cfg.up_auto and nothing integrated yet: like detectPlanesRansac, the largest (first)
+    // observation's normal is up.
+    if (!up_) up_ = obs.plane.normal.normalized();
+    Eigen::AlignedBox2d obs_extent;
+    const int match = findMatch(obs, points_world, obs_extent);
+    if (match >= 0) {
+      absorb(match, obs, points_world, obs_extent);
+      ids.push_back(match);
+    } else {
+      ids.push_back(addPlane(obs, points_world));
+    }
+  }
+  return ids;
+}
+
+int PlaneTracker::findMatch(const PlaneObservation& obs, const std::vector<Eigen::Vector3f>& points,
+                            Eigen::AlignedBox2d& obs_extent) const {
+  const double min_cos = std::cos(cfg_.plane_merge_angle_deg * kPi / 180.0);
+  const std::vector<std::uint32_t> sample = detail::evenSubsample(obs.inliers, kMatchSample);
+  const Eigen::Vector3d centre = detail::centroidOf(points, obs.inliers);
+  int best = -1;
+  double best_dist = std::numeric_limits<double>::infinity();
+  for (const Plane& g : planes_) {
+    if (g.normal.dot(obs.plane.normal) < min_cos) continue;
+    const double dist = std::abs(g.signedDistance(centre));
+    if (dist > cfg_.plane_merge_offset || dist >= best_dist) continue;
+    if (boxGap(detail::extentOf(g, points, sample), g.extent) > cfg_.plane_merge_extent_gap) {
+      continue;
+    }
+    best = g.id;
+    best_dist = dist;
+  }
+  if (best >= 0) obs_extent = detail::extentOf(planes_[best], points, obs.inliers);
+  return best;
+}
+
+int PlaneTracker::addPlane(const PlaneObservation& obs,
+                           const std::vector<Eigen::Vector3f>& points) {
+  const int id = static_cast<int>(planes_.size());
+  Plane plane =
+      detail::planeFromInliers(obs.plane.normal, obs.plane.offset, points, obs.inliers, *up_);
+  plane.id = id;
+  plane.orientation = obs.plane.orientation;
+  planes_.push_back(plane);
+  Track track;
+  track.rng_state = 0x7a3c5eedULL + static_cast<std::uint64_t>(id);
+  tracks_.push_back(std::move(track));
+  Track& t = tracks_.back();
+  offerToReservoir(t, points, obs.inliers);
+  t.since_refine = obs.inliers.size();
+  maybeRefine(id);
+  return id;
+}
+
+void PlaneTracker::absorb(int id, const PlaneObservation& obs,
+                          const std::vector<Eigen::Vector3f>& points,
+                          const Eigen::AlignedBox2d& obs_extent) {
+  Plane& plane = planes_[static_cast<std::size_t>(id)];
+  Track& track = tracks_[static_cast<std::size_t>(id)];
+  plane.support += obs.inliers.size();
+  plane.extent.extend(obs_extent);
+  offerToReservoir(track, points, obs.inliers);
+  track.since_refine += obs.inliers.size();
+  maybeRefine(id);
+}
+
+void PlaneTracker::offerToReservoir(Track& track, const std::vector<Eigen::Vector3f>& points,
+                                    const std::vector<std::uint32_t>& indices) const {
+  const auto cap = static_cast<std::size_t>(cfg_.plane_reservoir_size);
+  detail::SplitMix64 rng(track.rng_state);
+  for (std::uint32_t i : indices) {
+    ++track.seen;
+    if (track.reservoir.size() < cap) {
+      track.reservoir.push_back(points[i]);
+    } else {
+      const std::uint64_t j = rng.below(track.seen);
+      if (j < cap) track.reservoir[j] = points[i];
+    }
+  }
+  track.rng_state = rng.state;
+}
+
+void PlaneTracker::maybeRefine(int id) {
+  Track& track = tracks_[static_cast<std::size_t>(id)];
+  if (track.since_refine < static_cast<std::size_t>(cfg_.refine_min_new_inliers)) return;
+  Plane& plane = planes_[static_cast<std::size_t>(id)];
+  if (refinePlane(track.reservoir, plane, cfg_)) {
+    ++track.refinements;
+    // Keep the class in step with the refined normal (it stays within the merge tolerance).
+    if (const auto cls = classifyOrientation(plane.normal, *up_, cfg_.orientation_tolerance_deg)) {
+      plane.orientation = *cls;
+    }
+  }
+  track.since_refine = 0;
+}
+
+void PlaneTracker::restore(std::vector<Plane> planes, std::optional<Eigen::Vector3d> up) {
+  for (std::size_t i = 0; i < planes.size(); ++i)
+    if (planes[i].id != static_cast<int>(i))
+      throw Error("planes", "plane ids must be 0..n-1 (plane " + std::to_string(i) + " has id " +
+                                std::to_string(planes[i].id) + ")");
+  planes_ = std::move(planes);
+  tracks_.clear();
+  for (std::size_t i = 0; i < planes_.size(); ++i) {
+    Track track;
+    track.rng_state = 0x7a3c5eedULL + static_cast<std::uint64_t>(i);
+    tracks_.push_back(std::move(track));
+  }
+  if (up) up_ = up->normalized();
+}
+
+}  // namespace planesdf

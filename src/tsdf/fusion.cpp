@@ -1,0 +1,855 @@
+// Fusion into a TsdfVolume: projective integration of depth frames and splatting of points with
+// normals. See tsdf.hpp for the contracts.
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "planesdf/error.hpp"
+#include "planesdf/tsdf.hpp"
+
+namespace planesdf {
+
+namespace {
+
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+inline int floorToInt(float x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<float>(i) ? 1 : 0);
+}
+
+int resolveThreads(int requested) {
+  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
+}
+
+/// Heights (local z) that bound the fusion: points are fused when h is in [pt_lo, pt_hi];
+/// voxels are updated when their centre's h is in [vox_lo, vox_hi] (the point band widened by
+/// the truncation); allocation covers [alloc_lo, alloc_hi], the extent of those voxels.
+struct Band {
+  float pt_lo, pt_hi, vox_lo, vox_hi, alloc_lo, alloc_hi;
+};
+
+Band makeBand(const Config& cfg, double voxel, double truncation) {
+  Band b;
+  b.pt_lo = static_cast<float>(-cfg.below_band);
+  b.pt_hi = static_cast<float>(cfg.fuse_band);
+  b.vox_lo = static_cast<float>(-cfg.below_band - truncation);
+  b.vox_hi = static_cast<float>(cfg.fuse_band + truncation);
+  // Voxel k has its centre at (k + 0.5) * voxel: the band's first and last voxels.
+  const double k_lo = std::ceil(b.vox_lo / voxel - 0.5), k_hi = std::floor(b.vox_hi / voxel - 0.5);
+  b.alloc_lo = static_cast<float>(k_lo * voxel + 1e-4 * voxel);
+  b.alloc_hi = static_cast<float>((k_hi + 1.0) * voxel - 1e-4 * voxel);
+  return b;
+}
+
+void validateFusionConfig(const Config& cfg) {
+  const auto bad = [](const std::string& m) { throw Error("", "fusion config: " + m); };
+  if (!(std::isfinite(cfg.fuse_band) && cfg.fuse_band >= 0.0)) bad("fuse_band must be >= 0");
+  if (!(std::isfinite(cfg.below_band) && cfg.below_band >= 0.0)) bad("below_band must be >= 0");
+  if (!(std::isfinite(cfg.min_depth) && cfg.min_depth >= 0.0)) bad("min_depth must be >= 0");
+  if (!(std::isfinite(cfg.max_depth) && cfg.max_depth > cfg.min_depth))
+    bad("max_depth must be finite and > min_depth");
+  if (!(std::isfinite(cfg.max_weight) && cfg.max_weight >= 1.0f)) bad("max_weight must be >= 1");
+}
+
+/// Running-average update with weight 1; returns true when the voxel changed.
+inline bool fuseVoxel(TsdfVoxel& v, float sdf, float max_weight) {
+  const float w_new = std::min(v.weight + 1.0f, max_weight);
+  const float s_new = v.sdf + (sdf - v.sdf) / (v.weight + 1.0f);
+  if (s_new == v.sdf && w_new == v.weight) return false;
+  v.sdf = s_new;
+  v.weight = w_new;
+  return true;
+}
+
+/// Small ring of recently seen block keys: neighbouring pixels' segments cross the same blocks.
+class RecentKeys {
+ public:
+  RecentKeys() { keys_.fill(detail::kEmptyBlockKey); }
+  /// True when `key` was seen among the last 8; else remembers it.
+  bool seen(std::uint64_t key) {
+    for (const std::uint64_t k : keys_)
+      if (k == key) return true;
+    keys_[next_] = key;
+    next_ = (next_ + 1) & 7;
+    return false;
+  }
+
+ private:
+  std::array<std::uint64_t, 8> keys_;
+  int next_ = 0;
+};
+
+/// Collects, per thread, the keys of blocks that are not in the volume yet.
+class NewBlockCollector {
+ public:
+  explicit NewBlockCollector(const TsdfVolume& vol) : vol_(vol) {}
+  void add(const Eigen::Vector3i& b) {
+    if (!blockIndexInRange(b)) return;
+    const std::uint64_t key = packBlockKey(b);
+    if (recent_.seen(key) || vol_.blockSlot(b) >= 0) return;
+    if (set_.insert(key, 0).second) keys_.push_back(key);
+  }
+  const std::vector<std::uint64_t>& keys() const { return keys_; }
+  /// True when every block of the box [lo, hi] is allocated or collected.
+  bool allKnown(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) const {
+    for (int z = lo.z(); z <= hi.z(); ++z)
+      for (int y = lo.y(); y <= hi.y(); ++y)
+        for (int x = lo.x(); x <= hi.x(); ++x) {
+          const Eigen::Vector3i b(x, y, z);
+          if (!blockIndexInRange(b)) return false;
+          if (vol_.blockSlot(b) < 0 && set_.find(packBlockKey(b)) == BlockHashMap::kNotFound)
+            return false;
+        }
+    return true;
+  }
+
+ private:
+  const TsdfVolume& vol_;
+  RecentKeys recent_;
+  BlockHashMap set_;
+  std::vector<std::uint64_t> keys_;
+};
+
+/// Allocates the blocks of `per_thread` key lists in key order; returns their indices.
+std::vector<Eigen::Vector3i> allocateKeys(
+    TsdfVolume& vol, const std::vector<std::vector<std::uint64_t>>& per_thread) {
+  std::vector<std::uint64_t> keys;
+  for (const auto& k : per_thread) keys.insert(keys.end(), k.begin(), k.end());
+  std::sort(keys.begin(), keys.end());
+  keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  std::vector<Eigen::Vector3i> out;
+  out.reserve(keys.size());
+  for (const std::uint64_t k : keys) {
+    out.push_back(unpackBlockKey(k));
+    vol.allocateBlock(out.back());
+  }
+  return out;
+}
+
+/// Calls f(block index) for each block crossed by the segment A-B, given in block units, whose
+/// ends lie in blocks `start` and `end` (3D DDA). Visits exactly |dx|+|dy|+|dz|+1 blocks.
+template <class F>
+void visitBlocksOnSegment(const Eigen::Vector3f& A, const Eigen::Vector3f& B,
+                          const Eigen::Vector3i& start, const Eigen::Vector3i& end, F&& f) {
+  Eigen::Vector3i cur = start;
+  f(cur);
+  int remaining = (end - cur).cwiseAbs().sum();
+  if (remaining == 0) return;
+  if (remaining == 1) {
+    f(end);
+    return;
+  }
+  const Eigen::Vector3f D = B - A;
+  float t_max[3], t_delta[3];
+  int step[3];
+  for (int i = 0; i < 3; ++i) {
+    step[i] = end[i] > cur[i] ? 1 : (end[i] < cur[i] ? -1 : 0);
+    if (step[i] == 0) {
+      t_max[i] = t_delta[i] = kInf;
+      continue;
+    }
+    const float boundary = static_cast<float>(cur[i] + (step[i] > 0 ? 1 : 0));
+    t_max[i] = (boundary - A[i]) / D[i];
+    t_delta[i] = static_cast<float>(step[i]) / D[i];
+  }
+  while (remaining-- > 0) {
+    int axis = -1;
+    float best = kInf;
+    for (int i = 0; i < 3; ++i)
+      if (cur[i] != end[i] && (axis < 0 || t_max[i] < best)) {
+        best = t_max[i];
+        axis = i;
+      }
+    cur[axis] += step[axis];
+    t_max[axis] += t_delta[axis];
+    f(cur);
+  }
+}
+
+inline Eigen::Vector3i floorVec(const Eigen::Vector3f& p) {
+  return Eigen::Vector3i(floorToInt(p.x()), floorToInt(p.y()), floorToInt(p.z()));
+}
+
+/// Per-thread collection of the blocks crossed by truncation segments. Consecutive pixels mostly
+/// give segments between the same two blocks a and b; once every block of the box spanned by a
+/// and b is known (allocated or collected), no path between them can add anything, so such
+/// segments are skipped without walking them (exact, not an approximation). A box found to hold
+/// an unknown block is not checked again while the same (a, b) repeats.
+class SegmentBlocks {
+ public:
+  explicit SegmentBlocks(const TsdfVolume& vol) : collector_(vol) {
+    done_.fill({Eigen::Vector3i::Zero(), Eigen::Vector3i::Constant(-1)});  // never matches
+  }
+  /// The segment A-B in block units.
+  void add(const Eigen::Vector3f& A, const Eigen::Vector3f& B) {
+    const Eigen::Vector3i a = floorVec(A), b = floorVec(B);
+    for (const auto& d : done_)
+      if (d.first == a && d.second == b) return;
+    visitBlocksOnSegment(A, B, a, b, [&](const Eigen::Vector3i& blk) { collector_.add(blk); });
+    if (a == failed_.first && b == failed_.second) return;
+    if (collector_.allKnown(a.cwiseMin(b), a.cwiseMax(b))) {
+      done_[next_] = {a, b};
+      next_ = (next_ + 1) & 3;
+    } else {
+      failed_ = {a, b};
+    }
+  }
+  const std::vector<std::uint64_t>& newKeys() const { return collector_.keys(); }
+
+ private:
+  NewBlockCollector collector_;
+  std::array<std::pair<Eigen::Vector3i, Eigen::Vector3i>, 4> done_;
+  std::pair<Eigen::Vector3i, Eigen::Vector3i> failed_{Eigen::Vector3i::Zero(),
+                                                      Eigen::Vector3i::Constant(-1)};
+  int next_ = 0;
+};
+
+// ---- depth frames ---------------------------------------------------------------------------
+
+/// The camera in float, with both transforms.
+struct Camera {
+  float fx, fy, cx, cy;
+  int width, height;
+  float z_min, z_max;    // depth range (z_min > 0)
+  Eigen::Matrix3f R_lc;  // camera -> local
+  Eigen::Vector3f t_lc;
+  Eigen::Matrix3d R_cl_d;  // local -> camera (double, for block origins)
+  Eigen::Vector3d t_cl_d;
+  Eigen::Matrix3f R_cl;
+};
+
+Camera makeCamera(const Intrinsics& K, const Pose& T_local_camera, const Config& cfg) {
+  Camera c;
+  c.fx = static_cast<float>(K.fx);
+  c.fy = static_cast<float>(K.fy);
+  c.cx = static_cast<float>(K.cx);
+  c.cy = static_cast<float>(K.cy);
+  c.width = K.width;
+  c.height = K.height;
+  c.z_min = static_cast<float>(std::max(cfg.min_depth, 1e-6));
+  c.z_max = static_cast<float>(cfg.max_depth);
+  c.R_lc = T_local_camera.linear().cast<float>();
+  c.t_lc = T_local_camera.translation().cast<float>();
+  const Pose T_cl = T_local_camera.inverse(Eigen::Isometry);
+  c.R_cl_d = T_cl.linear();
+  c.t_cl_d = T_cl.translation();
+  c.R_cl = c.R_cl_d.cast<float>();
+  return c;
+}
+
+/// A pixel's measurement for pass 2. With r = (xp, yp, 1) the pixel's ray and P = d r its point,
+/// the tangent plane through P is written as n' . x + d = 0 with n' = n / k, n the unit normal
+/// facing the camera and k = -n . r, so that n' . r = -1. For a voxel at x (camera frame),
+/// q = n' . x + d is its depth difference to the tangent plane along the pixel's viewing
+/// direction (sub-pixel exact; d - z on the pixel's ray) and k * q its distance to the plane.
+/// Stored in 8 bytes (the image is read at random in pass 2, so its size matters): n'x, n'y
+/// and k as 16-bit fixed point, d as 16-bit fixed point of the depth range; n'z = -1 - n'x xp -
+/// n'y yp. dq = 0: no measurement; k < 0: the point is outside the band (or grazing) and only
+/// carves free space.
+struct PixelMeasurement {
+  std::int16_t nx, ny;
+  std::uint16_t dq;
+  std::int16_t kq;
+};
+
+/// Fixed-point scales: |n'| <= 1 / kMinCosine = 5 < 6; k <= |r| < 4 (fields of view < 150 deg).
+constexpr float kNormalScale = 32767.0f / 6.0f;
+constexpr float kCosineScale = 32767.0f / 4.0f;
+
+/// Quantises a measurement; `depth_scale` is the depth of one unit of dq.
+inline PixelMeasurement encodeMeasurement(float nx, float ny, float d, float k, bool carve_only,
+                                          float depth_scale) {
+  const auto q16 = [](float x, float scale) {
+    const float y = std::clamp(x * scale, -32767.0f, 32767.0f);
+    return static_cast<std::int16_t>(y + (y >= 0.0f ? 0.5f : -0.5f));
+  };
+  PixelMeasurement m;
+  m.nx = q16(nx, kNormalScale);
+  m.ny = q16(ny, kNormalScale);
+  m.dq = static_cast<std::uint16_t>(std::clamp(d / depth_scale + 0.5f, 1.0f, 65535.0f));
+  const std::int16_t kq = std::max<std::int16_t>(1, q16(k, kCosineScale));
+  m.kq = carve_only ? static_cast<std::int16_t>(-kq) : kq;
+  return m;
+}
+
+/// Surfaces seen more grazing than this (cosine between the ray and the surface normal) are not
+/// fused: their points only carve free space.
+constexpr float kMinCosine = 0.2f;
+/// Neighbouring depths differing by more than this many pixel footprints (and more than the
+/// truncation) are a discontinuity; a surface at acos(kMinCosine) = 78 deg differs by ~5.
+constexpr float kMaxJumpFootprints = 6.0f;
+
+/// Depth derivative along one image axis from the two neighbours' depths dm, dp (central
+/// difference; one-sided when a neighbour is invalid or across a jump > max_jump). False when
+/// both are missing.
+inline bool depthDerivative(float dm, float dp, float d, const Camera& cam, float max_jump,
+                            float* out) {
+  const bool has_m = dm >= cam.z_min && dm <= cam.z_max && std::fabs(dm - d) <= max_jump;
+  const bool has_p = dp >= cam.z_min && dp <= cam.z_max && std::fabs(dp - d) <= max_jump;
+  if (has_m && has_p)
+    *out = 0.5f * (dp - dm);
+  else if (has_p)
+    *out = dp - d;
+  else if (has_m)
+    *out = d - dm;
+  else
+    return false;
+  return true;
+}
+
+/// The unit tangent-plane normal n (camera frame, facing the camera) of pixel u of row `row`,
+/// whose ray is r = (x, y, 1) and depth d; `above`/`below` are the neighbouring rows (or
+/// nullptr). For P = D(u, v) r(u, v) the normal is parallel to
+/// (fx D_u, fy D_v, -(D + fx x D_u + fy y D_v)), whose dot product with r is -D.
+/// Without a usable normal: (0, 0, -1), i.e. the projective distance d - z. The zero vector for
+/// surfaces seen more grazing than kMinCosine.
+void surfaceNormal(const float* above, const float* row, const float* below, int u, float x,
+                   float y, float d, const Camera& cam, float max_jump, float n[3]) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  float du, dv;
+  if (!depthDerivative(u > 0 ? row[u - 1] : nan, u + 1 < cam.width ? row[u + 1] : nan, d, cam,
+                       max_jump, &du) ||
+      !depthDerivative(above ? above[u] : nan, below ? below[u] : nan, d, cam, max_jump, &dv)) {
+    n[0] = n[1] = 0.0f;
+    n[2] = -1.0f;
+    return;
+  }
+  n[0] = cam.fx * du;
+  n[1] = cam.fy * dv;
+  n[2] = -(d + cam.fx * x * du + cam.fy * y * dv);
+  const float len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  // cos(ray, normal) = d / (|n| |r|)
+  const float scale = d < kMinCosine * len * std::sqrt(x * x + y * y + 1.0f) ? 0.0f : 1.0f / len;
+  for (int i = 0; i < 3; ++i) n[i] *= scale;
+}
+
+/// Silhouette guard. A voxel beside a foreground object whose pixel sees the background gets a
+/// large positive distance from that background although the object is near: the classic
+/// silhouette bias of projective fusion. Pixels on the near side of a depth discontinuity are
+/// "edge" pixels; per tile of kGuardTile^2 pixels the guard map holds the smallest edge depth
+/// within the lateral reach of the truncation (dilated), and a voxel with sdf > kGuardSdf voxels
+/// that projects where an edge is at most one truncation behind it is not updated by this frame.
+constexpr int kGuardTileShift = 3;
+constexpr int kGuardTile = 1 << kGuardTileShift;
+constexpr float kGuardSdf = 0.5f;  // voxels
+
+/// Everything pass 2 reads from the frame.
+struct FrameMeasurements {
+  std::vector<PixelMeasurement> pixels;  ///< row-major, one per pixel
+  std::vector<float> xn, yn;             ///< normalised coordinates of columns / rows
+  float depth_scale = 0.0f;              ///< metres per unit of PixelMeasurement::dq
+  std::vector<float> guard;              ///< per tile: nearby edge depth (+inf: none)
+  int tiles_x = 0, tiles_y = 0;
+};
+
+/// True when pixel u of `row` (depth d) has a valid 4-neighbour farther than d + max_jump.
+inline bool isForegroundEdge(const float* above, const float* row, const float* below, int u, int W,
+                             float d, float max_jump, const Camera& cam) {
+  const float far = d + max_jump;
+  const auto farther = [&](float dd) { return dd > far && dd <= cam.z_max; };
+  return (u > 0 && farther(row[u - 1])) || (u + 1 < W && farther(row[u + 1])) ||
+         (above && farther(above[u])) || (below && farther(below[u]));
+}
+
+/// Dilates the tile map by `r` tiles (separable min filter).
+void dilateMin(std::vector<float>& map, int w, int h, int r) {
+  std::vector<float> tmp(map.size());
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float m = std::numeric_limits<float>::infinity();
+      for (int i = std::max(0, x - r); i <= std::min(w - 1, x + r); ++i)
+        m = std::min(m, map[y * w + i]);
+      tmp[y * w + x] = m;
+    }
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      float m = std::numeric_limits<float>::infinity();
+      for (int j = std::max(0, y - r); j <= std::min(h - 1, y + r); ++j)
+        m = std::min(m, tmp[j * w + x]);
+      map[y * w + x] = m;
+    }
+}
+
+/// Pass 1 over the pixels, parallel over rows of tiles: fills `fm` and allocates the blocks
+/// crossed by the ray segments of in-band points within the truncation of their surface
+/// (|depth difference| * k <= trunc), clipped to the band's voxels. Returns the in-band count.
+std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const Camera& cam,
+                                const Band& band, int threads, FrameMeasurements& fm,
+                                std::vector<Eigen::Vector3i>& allocated) {
+  const int W = cam.width, H = cam.height;
+  const float trunc = static_cast<float>(vol.truncation());
+  const float inv_bs = static_cast<float>(1.0 / vol.blockSize());
+  const float footprint = 1.0f / std::min(cam.fx, cam.fy);  // pixel size at unit depth
+  const Eigen::Matrix3f& R = cam.R_lc;
+  const Eigen::Vector3f& t = cam.t_lc;
+  std::vector<float>& xn = fm.xn;
+  xn.resize(W);
+  for (int u = 0; u < W; ++u) xn[u] = (static_cast<float>(u) - cam.cx) / cam.fx;
+  fm.yn.resize(H);
+  for (int v = 0; v < H; ++v) fm.yn[v] = (static_cast<float>(v) - cam.cy) / cam.fy;
+  fm.pixels.resize(static_cast<std::size_t>(W) * H);
+  fm.depth_scale = cam.z_max / 65535.0f;
+  fm.tiles_x = (W + kGuardTile - 1) >> kGuardTileShift;
+  fm.tiles_y = (H + kGuardTile - 1) >> kGuardTileShift;
+  fm.guard.assign(static_cast<std::size_t>(fm.tiles_x) * fm.tiles_y,
+                  std::numeric_limits<float>::infinity());
+  std::vector<std::vector<std::uint64_t>> new_keys(threads);
+  std::size_t in_band = 0, n_valid = 0;
+  double sum_depth = 0.0;
+#pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : in_band, n_valid, sum_depth)
+  {
+    SegmentBlocks segments(vol);
+#pragma omp for schedule(dynamic, 1)
+    for (int ty = 0; ty < fm.tiles_y; ++ty) {
+      float* guard_row = fm.guard.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
+      for (int v = ty * kGuardTile; v < std::min(H, (ty + 1) * kGuardTile); ++v) {
+        const float yn = fm.yn[v];
+        const float row_dir[3] = {yn * R(0, 1) + R(0, 2), yn * R(1, 1) + R(1, 2),
+                                  yn * R(2, 1) + R(2, 2)};
+        const float* depth = frame.depth.data() + static_cast<std::size_t>(v) * W;
+        const float* above = v > 0 ? depth - W : nullptr;
+        const float* below = v + 1 < H ? depth + W : nullptr;
+        PixelMeasurement* out = fm.pixels.data() + static_cast<std::size_t>(v) * W;
+        for (int u = 0; u < W; ++u) {
+          const float d = depth[u];
+          if (!(d >= cam.z_min && d <= cam.z_max)) {
+            out[u] = {0, 0, 0, 0};
+            continue;
+          }
+          ++n_valid;
+          sum_depth += d;
+          const float max_jump = std::max(trunc, kMaxJumpFootprints * d * footprint);
+          if (isForegroundEdge(above, depth, below, u, W, d, max_jump, cam)) {
+            float& g = guard_row[u >> kGuardTileShift];
+            g = std::min(g, d);
+          }
+          float n[3];
+          surfaceNormal(above, depth, below, u, xn[u], yn, d, cam, max_jump, n);
+          const float k = -(n[0] * xn[u] + n[1] * yn + n[2]);  // 0 when grazing
+          // The ray in local coordinates per unit depth, and the point's height.
+          const float dir[3] = {xn[u] * R(0, 0) + row_dir[0], xn[u] * R(1, 0) + row_dir[1],
+                                xn[u] * R(2, 0) + row_dir[2]};
+          const float pz = t.z() + d * dir[2];
+          if (k == 0.0f) {  // grazing: carve along the optical axis only
+            out[u] = encodeMeasurement(0.0f, 0.0f, d, 1.0f, true, fm.depth_scale);
+            continue;
+          }
+          const float nx = n[0] / k, ny = n[1] / k;
+          if (!(pz >= band.pt_lo && pz <= band.pt_hi)) {
+            out[u] = encodeMeasurement(nx, ny, d, k, true, fm.depth_scale);
+            continue;
+          }
+          out[u] = encodeMeasurement(nx, ny, d, k, false, fm.depth_scale);
+          ++in_band;
+          // Segment over depths d + s of this pixel's ray, for the voxels it fuses: trunc / k in
+          // front (distance trunc), trunc behind; clipped to the band's voxels.
+          float s0 = -trunc / k, s1 = trunc;
+          if (dir[2] != 0.0f) {
+            float sa = (band.alloc_lo - pz) / dir[2], sb = (band.alloc_hi - pz) / dir[2];
+            if (sa > sb) std::swap(sa, sb);
+            s0 = std::max(s0, sa);
+            s1 = std::min(s1, sb);
+          }
+          if (s0 > s1) continue;
+          const float a0 = (d + s0) * inv_bs, a1 = (d + s1) * inv_bs;
+          segments.add(Eigen::Vector3f(t.x() * inv_bs + a0 * dir[0], t.y() * inv_bs + a0 * dir[1],
+                                       t.z() * inv_bs + a0 * dir[2]),
+                       Eigen::Vector3f(t.x() * inv_bs + a1 * dir[0], t.y() * inv_bs + a1 * dir[1],
+                                       t.z() * inv_bs + a1 * dir[2]));
+        }
+      }
+    }
+    new_keys[omp_get_thread_num()] = segments.newKeys();
+  }
+  allocated = allocateKeys(vol, new_keys);
+  // Lateral reach of the truncation at the frame's mean depth, in tiles.
+  if (n_valid > 0) {
+    const double reach_px = trunc / (footprint * (sum_depth / static_cast<double>(n_valid)));
+    dilateMin(fm.guard, fm.tiles_x, fm.tiles_y, static_cast<int>(std::ceil(reach_px / kGuardTile)));
+  }
+  return in_band;
+}
+
+/// Slots of the allocated blocks that may hold a voxel centre in the frustum's local AABB and
+/// the voxel band, in slot order. Enumerates the AABB's block cells or scans all blocks,
+/// whichever is fewer.
+std::vector<std::uint32_t> frustumCandidates(const TsdfVolume& vol, const Camera& cam,
+                                             const Band& band) {
+  std::vector<std::uint32_t> slots;
+  Eigen::Vector3i vlo, vhi;
+  if (!vol.blockBounds(&vlo, &vhi)) return slots;
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -lo;
+  const double us[2] = {-0.5, cam.width - 0.5}, vs[2] = {-0.5, cam.height - 0.5};
+  const double zs[2] = {cam.z_min, cam.z_max};
+  for (const double z : zs)
+    for (const double u : us)
+      for (const double v : vs) {
+        const Eigen::Vector3d pc(z * (u - cam.cx) / cam.fx, z * (v - cam.cy) / cam.fy, z);
+        const Eigen::Vector3d pl = cam.R_cl_d.transpose() * (pc - cam.t_cl_d);
+        lo = lo.cwiseMin(pl);
+        hi = hi.cwiseMax(pl);
+      }
+  lo.z() = std::max(lo.z(), static_cast<double>(band.vox_lo));
+  hi.z() = std::min(hi.z(), static_cast<double>(band.vox_hi));
+  if ((lo.array() > hi.array()).any()) return slots;
+  const double bs = vol.blockSize();
+  const auto cell = [&](double x) { return static_cast<int>(std::floor(x / bs)); };
+  const Eigen::Vector3i blo =
+      Eigen::Vector3i(cell(lo.x()), cell(lo.y()), cell(lo.z())).cwiseMax(vlo);
+  const Eigen::Vector3i bhi =
+      Eigen::Vector3i(cell(hi.x()), cell(hi.y()), cell(hi.z())).cwiseMin(vhi);
+  if ((blo.array() > bhi.array()).any()) return slots;
+  const Eigen::Vector3d extent = (bhi - blo).cast<double>().array() + 1.0;
+  const double cells = extent.prod();
+  if (cells <= static_cast<double>(vol.numBlocks())) {
+    for (int z = blo.z(); z <= bhi.z(); ++z)
+      for (int y = blo.y(); y <= bhi.y(); ++y)
+        for (int x = blo.x(); x <= bhi.x(); ++x) {
+          const std::ptrdiff_t s = vol.blockSlot(Eigen::Vector3i(x, y, z));
+          if (s >= 0) slots.push_back(static_cast<std::uint32_t>(s));
+        }
+    std::sort(slots.begin(), slots.end());
+  } else {
+    for (std::size_t s = 0; s < vol.numBlocks(); ++s) {
+      const Eigen::Vector3i& b = vol.block(s).index;
+      if ((b.array() >= blo.array()).all() && (b.array() <= bhi.array()).all())
+        slots.push_back(static_cast<std::uint32_t>(s));
+    }
+  }
+  return slots;
+}
+
+/// Indices into `slots` ordered by the image tile their block centre projects to (row-major
+/// tiles of 32 px; blocks behind the camera last), so that consecutive blocks read nearby pixel
+/// measurements from cache. Ties keep slot order (deterministic).
+std::vector<std::uint32_t> imageOrder(const TsdfVolume& vol,
+                                      const std::vector<std::uint32_t>& slots, const Camera& cam) {
+  constexpr double kTile = 32.0;
+  const double half = 0.5 * vol.blockSize();
+  const int tiles_x = static_cast<int>(std::ceil(cam.width / kTile)) + 2;
+  std::vector<std::pair<std::int64_t, std::uint32_t>> keyed(slots.size());
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    const Eigen::Vector3d c_local = vol.block(slots[i]).index.cast<double>() * vol.blockSize() +
+                                    Eigen::Vector3d::Constant(half);
+    const Eigen::Vector3d c = cam.R_cl_d * c_local + cam.t_cl_d;
+    std::int64_t key = std::numeric_limits<std::int64_t>::max();
+    if (c.z() > 1e-6) {
+      const double u = cam.fx * c.x() / c.z() + cam.cx, v = cam.fy * c.y() / c.z() + cam.cy;
+      const auto tile = [&](double x, int n) {
+        return std::clamp(static_cast<int>(std::floor(x / kTile)) + 1, 0, n);
+      };
+      const int ty = tile(v, static_cast<int>(std::ceil(cam.height / kTile)) + 1);
+      key = static_cast<std::int64_t>(ty) * tiles_x + tile(u, tiles_x - 1);
+    }
+    keyed[i] = {key, static_cast<std::uint32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<std::uint32_t> order(slots.size());
+  for (std::size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  return order;
+}
+
+/// Frustum side planes through the camera centre (inside: n . p >= 0), plus the depth range;
+/// tests a sphere in camera coordinates.
+struct FrustumCull {
+  Eigen::Vector3f n[4];
+  float z_min, z_max;
+
+  explicit FrustumCull(const Camera& c) : z_min(c.z_min), z_max(c.z_max) {
+    const float aL = (-0.5f - c.cx) / c.fx, aR = (c.width - 0.5f - c.cx) / c.fx;
+    const float aT = (-0.5f - c.cy) / c.fy, aB = (c.height - 0.5f - c.cy) / c.fy;
+    n[0] = Eigen::Vector3f(1.0f, 0.0f, -aL).normalized();
+    n[1] = Eigen::Vector3f(-1.0f, 0.0f, aR).normalized();
+    n[2] = Eigen::Vector3f(0.0f, 1.0f, -aT).normalized();
+    n[3] = Eigen::Vector3f(0.0f, -1.0f, aB).normalized();
+  }
+  bool mayIntersect(const Eigen::Vector3f& c, float r) const {
+    if (c.z() < z_min - r || c.z() > z_max + r) return false;
+    for (const auto& ni : n)
+      if (ni.dot(c) < -r) return false;
+    return true;
+  }
+};
+
+struct BlockOutcome {
+  bool in_view = false;
+  bool changed = false;
+  std::uint32_t updates = 0;
+};
+
+struct DepthUpdateParams {
+  const FrameMeasurements* fm;
+  float trunc;
+  float max_weight;
+  float voxel;
+  Band band;
+};
+
+/// Pass 2 for one block: projects its voxel centres (memory order) and fuses them.
+BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const FrustumCull& cull,
+                                  const DepthUpdateParams& prm) {
+  BlockOutcome out;
+  const double vs = prm.voxel;
+  const Eigen::Vector3d c0_local =
+      (blk.index.cast<double>() * kTsdfBlockSide).array() * vs + 0.5 * vs;
+  const Eigen::Vector3f c0 = (cam.R_cl_d * c0_local + cam.t_cl_d).cast<float>();
+  const Eigen::Vector3f ax = cam.R_cl.col(0) * prm.voxel;
+  const Eigen::Vector3f ay = cam.R_cl.col(1) * prm.voxel;
+  const Eigen::Vector3f az = cam.R_cl.col(2) * prm.voxel;
+  const float half = 0.5f * (kTsdfBlockSide - 1);
+  const float radius = std::sqrt(3.0f) * half * prm.voxel * 1.0001f + 1e-6f;
+  if (!cull.mayIntersect(c0 + half * (ax + ay + az), radius)) return out;
+
+  // Plain float arithmetic in the voxel loop (fast in optimised and in debug builds alike).
+  const float w_lim = cam.width - 0.5f, h_lim = cam.height - 0.5f;
+  const float guard_sdf = kGuardSdf * prm.voxel;
+  const int W = cam.width, H = cam.height;
+  const FrameMeasurements& fm = *prm.fm;
+  const PixelMeasurement* pixels = fm.pixels.data();
+  const float* xn = fm.xn.data();
+  const float* yn = fm.yn.data();
+  const float* guard = fm.guard.data();
+  const float fx = cam.fx, fy = cam.fy, cx = cam.cx, cy = cam.cy;
+  const float trunc = prm.trunc, depth_scale = fm.depth_scale;
+  for (int z = 0; z < kTsdfBlockSide; ++z) {
+    const float h = static_cast<float>(c0_local.z() + z * vs);
+    if (!(h >= prm.band.vox_lo && h <= prm.band.vox_hi)) continue;
+    for (int y = 0; y < kTsdfBlockSide; ++y) {
+      const float fz = static_cast<float>(z), fyy = static_cast<float>(y);
+      const float rx = c0.x() + fz * az.x() + fyy * ay.x();
+      const float ry = c0.y() + fz * az.y() + fyy * ay.y();
+      const float rz = c0.z() + fz * az.z() + fyy * ay.z();
+      TsdfVoxel* voxels = &blk.voxels[(z * kTsdfBlockSide + y) * kTsdfBlockSide];
+      for (int x = 0; x < kTsdfBlockSide; ++x) {
+        const float fxx = static_cast<float>(x);
+        const float px = rx + fxx * ax.x(), py = ry + fxx * ax.y(), zc = rz + fxx * ax.z();
+        if (!(zc >= cam.z_min && zc <= cam.z_max)) continue;
+        const float inv = 1.0f / zc;
+        const float uf = fx * px * inv + cx;
+        const float vf = fy * py * inv + cy;
+        if (!(uf >= -0.5f && uf < w_lim && vf >= -0.5f && vf < h_lim)) continue;
+        out.in_view = true;
+        const int ui = std::min(static_cast<int>(uf + 0.5f), W - 1);
+        const int vi = std::min(static_cast<int>(vf + 0.5f), H - 1);
+        const PixelMeasurement m = pixels[static_cast<std::size_t>(vi) * W + ui];
+        if (m.dq == 0) continue;
+        const float q =
+            (m.nx * (px - xn[ui] * zc) + m.ny * (py - yn[vi] * zc)) * (1.0f / kNormalScale) +
+            (m.dq * depth_scale - zc);
+        if (q < -trunc) continue;  // behind the surface by more than the truncation
+        float sdf = static_cast<float>(m.kq < 0 ? -m.kq : m.kq) * (1.0f / kCosineScale) * q;
+        if (sdf > guard_sdf &&
+            guard[(vi >> kGuardTileShift) * fm.tiles_x + (ui >> kGuardTileShift)] <= zc + trunc)
+          continue;  // silhouette guard
+        if (sdf >= trunc)
+          sdf = trunc;
+        else if (m.kq < 0)
+          continue;  // outside the band: carves free space only
+        out.changed |= fuseVoxel(voxels[x], sdf, prm.max_weight);
+        ++out.updates;
+      }
+    }
+  }
+  return out;
+}
+
+/// Gathers per-block outcomes into `res`, bumps the revision and stamps changed blocks.
+void finishIntegration(TsdfVolume& vol, const std::vector<std::uint32_t>& slots,
+                       const std::vector<BlockOutcome>& outcomes, IntegrationResult& res) {
+  std::vector<std::uint32_t> changed;
+  for (std::size_t i = 0; i < slots.size(); ++i) {
+    const BlockOutcome& o = outcomes[i];
+    res.num_voxel_updates += o.updates;
+    if (o.in_view) res.updated_blocks.push_back(vol.block(slots[i]).index);
+    if (o.changed) changed.push_back(slots[i]);
+  }
+  if (changed.empty() && res.allocated_blocks.empty()) return;
+  const std::uint64_t rev = vol.bumpRevision();
+  for (const std::uint32_t s : changed) {
+    vol.block(s).revision = rev;
+    res.changed_blocks.push_back(vol.block(s).index);
+  }
+  for (const Eigen::Vector3i& b : res.allocated_blocks) vol.findBlock(b)->revision = rev;
+}
+
+void validateFrame(const DepthFrame& frame) {
+  frame.intrinsics.validate("depth frame");
+  const std::size_t expected =
+      static_cast<std::size_t>(frame.intrinsics.width) * frame.intrinsics.height;
+  if (frame.depth.size() != expected)
+    throw Error("", "depth frame: " + std::to_string(frame.depth.size()) + " depth values for a " +
+                        std::to_string(frame.intrinsics.width) + "x" +
+                        std::to_string(frame.intrinsics.height) + " image");
+}
+
+// ---- splatting ------------------------------------------------------------------------------
+
+struct Splat {
+  Eigen::Vector3f p, n;
+  Eigen::Vector3i vlo, vhi;  // inclusive global voxel range the splat may touch
+};
+
+/// The splat of point i, or false when the point is skipped (invalid, zero normal, out of band).
+bool makeSplat(const Eigen::Vector3f& p, const Eigen::Vector3f& n_raw, float trunc, float r_lat,
+               float voxel, const Band& band, Splat* s) {
+  if (!p.allFinite() || !n_raw.allFinite()) return false;
+  const float len = n_raw.norm();
+  if (!(len > 1e-12f)) return false;
+  if (!(p.z() >= band.pt_lo && p.z() <= band.pt_hi)) return false;
+  s->p = p;
+  s->n = n_raw / len;
+  const Eigen::Vector3f e = trunc * s->n.cwiseAbs() + Eigen::Vector3f::Constant(r_lat);
+  Eigen::Vector3f lo = p - e, hi = p + e;
+  lo.z() = std::max(lo.z(), band.vox_lo);
+  hi.z() = std::min(hi.z(), band.vox_hi);
+  for (int i = 0; i < 3; ++i) {
+    s->vlo[i] = -floorToInt(-(lo[i] / voxel - 0.5f));  // ceil
+    s->vhi[i] = floorToInt(hi[i] / voxel - 0.5f);
+  }
+  return (s->vlo.array() <= s->vhi.array()).all() &&
+         blockIndexInRange(TsdfVolume::blockOfVoxel(s->vlo)) &&
+         blockIndexInRange(TsdfVolume::blockOfVoxel(s->vhi));
+}
+
+/// Applies splat `s` to the voxels of `blk`; returns the number of voxel updates.
+std::uint32_t applySplat(TsdfBlock& blk, const Splat& s, float trunc, float r2, float voxel,
+                         float max_weight, bool* changed) {
+  const Eigen::Vector3i b0 = blk.index * kTsdfBlockSide;
+  const Eigen::Vector3i lo = s.vlo.cwiseMax(b0);
+  const Eigen::Vector3i hi = s.vhi.cwiseMin(b0 + Eigen::Vector3i::Constant(kTsdfBlockSide - 1));
+  std::uint32_t updates = 0;
+  for (int z = lo.z(); z <= hi.z(); ++z)
+    for (int y = lo.y(); y <= hi.y(); ++y)
+      for (int x = lo.x(); x <= hi.x(); ++x) {
+        const Eigen::Vector3f d =
+            (Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)) +
+             Eigen::Vector3f::Constant(0.5f)) *
+                voxel -
+            s.p;
+        const float t = s.n.dot(d);
+        if (std::fabs(t) > trunc || d.squaredNorm() - t * t > r2) continue;
+        TsdfVoxel& v = blk.voxels[TsdfVolume::linearIndexInBlock(Eigen::Vector3i(x, y, z))];
+        *changed |= fuseVoxel(v, t, max_weight);
+        ++updates;
+      }
+  return updates;
+}
+
+}  // namespace
+
+IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
+                                 const Pose& T_local_camera, const Config& cfg) {
+  validateFrame(frame);
+  validateFusionConfig(cfg);
+  IntegrationResult res;
+  const int threads = resolveThreads(cfg.threads);
+  const Camera cam = makeCamera(frame.intrinsics, T_local_camera, cfg);
+  const Band band = makeBand(cfg, vol.voxelSize(), vol.truncation());
+  // Per-thread scratch reused across calls (every entry is rewritten by pass 1): no large
+  // allocation and page faulting per frame.
+  thread_local FrameMeasurements fm;
+  res.num_points_fused =
+      classifyAndAllocate(vol, frame, cam, band, threads, fm, res.allocated_blocks);
+
+  const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band);
+  std::vector<BlockOutcome> outcomes(slots.size());
+  const FrustumCull cull(cam);
+  DepthUpdateParams prm{&fm, static_cast<float>(vol.truncation()), cfg.max_weight,
+                        static_cast<float>(vol.voxelSize()), band};
+  const std::vector<std::uint32_t> order = imageOrder(vol, slots, cam);
+  const int n = static_cast<int>(order.size());
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4)
+  for (int i = 0; i < n; ++i) {
+    const std::uint32_t j = order[i];
+    outcomes[j] = updateBlockFromDepth(vol.block(slots[j]), cam, cull, prm);
+  }
+  finishIntegration(vol, slots, outcomes, res);
+  return res;
+}
+
+IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
+                                             const std::vector<Eigen::Vector3f>& points_local,
+                                             const std::vector<Eigen::Vector3f>& normals_local,
+                                             const Config& cfg) {
+  if (points_local.size() != normals_local.size())
+    throw Error("", "splat integration: " + std::to_string(points_local.size()) + " points but " +
+                        std::to_string(normals_local.size()) + " normals");
+  validateFusionConfig(cfg);
+  if (!(std::isfinite(cfg.splat_radius_voxels) && cfg.splat_radius_voxels > 0.0))
+    throw Error("", "fusion config: splat_radius_voxels must be > 0");
+  IntegrationResult res;
+  const Band band = makeBand(cfg, vol.voxelSize(), vol.truncation());
+  const float trunc = static_cast<float>(vol.truncation());
+  const float voxel = static_cast<float>(vol.voxelSize());
+  const float r_lat = static_cast<float>(cfg.splat_radius_voxels) * voxel;
+
+  // Pass 1: splats, the blocks each may touch (local block ids), and allocation.
+  std::vector<Splat> splats;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> touches;  // (local block id, splat)
+  BlockHashMap ids;
+  std::vector<std::uint64_t> keys;
+  for (std::size_t i = 0; i < points_local.size(); ++i) {
+    Splat s;
+    if (!makeSplat(points_local[i], normals_local[i], trunc, r_lat, voxel, band, &s)) continue;
+    const auto si = static_cast<std::uint32_t>(splats.size());
+    splats.push_back(s);
+    const Eigen::Vector3i blo = TsdfVolume::blockOfVoxel(s.vlo);
+    const Eigen::Vector3i bhi = TsdfVolume::blockOfVoxel(s.vhi);
+    for (int z = blo.z(); z <= bhi.z(); ++z)
+      for (int y = blo.y(); y <= bhi.y(); ++y)
+        for (int x = blo.x(); x <= bhi.x(); ++x) {
+          const std::uint64_t key = packBlockKey(Eigen::Vector3i(x, y, z));
+          const auto [id, inserted] = ids.insert(key, static_cast<std::uint32_t>(keys.size()));
+          if (inserted) keys.push_back(key);
+          touches.emplace_back(id, si);
+        }
+  }
+  res.num_points_fused = splats.size();
+  {
+    std::vector<std::vector<std::uint64_t>> fresh(1);
+    for (const std::uint64_t k : keys)
+      if (vol.blockSlot(unpackBlockKey(k)) < 0) fresh[0].push_back(k);
+    res.allocated_blocks = allocateKeys(vol, fresh);
+  }
+
+  // Block order = slot order; per block, its splats in input order (counting sort).
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> order(keys.size());  // (slot, id)
+  for (std::size_t id = 0; id < keys.size(); ++id)
+    order[id] = {static_cast<std::uint32_t>(vol.blockSlot(unpackBlockKey(keys[id]))),
+                 static_cast<std::uint32_t>(id)};
+  std::sort(order.begin(), order.end());
+  std::vector<std::uint32_t> start(keys.size() + 1, 0), list(touches.size());
+  for (const auto& t : touches) ++start[t.first + 1];
+  for (std::size_t i = 0; i < keys.size(); ++i) start[i + 1] += start[i];
+  {
+    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+    for (const auto& t : touches) list[fill[t.first]++] = t.second;
+  }
+
+  // Pass 2: parallel over blocks.
+  std::vector<std::uint32_t> slots(order.size());
+  std::vector<BlockOutcome> outcomes(order.size());
+  const float r2 = r_lat * r_lat;
+  const int threads = resolveThreads(cfg.threads);
+  const int n = static_cast<int>(order.size());
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 2)
+  for (int i = 0; i < n; ++i) {
+    const auto [slot, id] = order[i];
+    slots[i] = slot;
+    TsdfBlock& blk = vol.block(slot);
+    BlockOutcome& o = outcomes[i];
+    for (std::uint32_t k = start[id]; k < start[id + 1]; ++k)
+      o.updates += applySplat(blk, splats[list[k]], trunc, r2, voxel, cfg.max_weight, &o.changed);
+    o.in_view = o.updates > 0;
+  }
+  finishIntegration(vol, slots, outcomes, res);
+  return res;
+}
+
+}  // namespace planesdf

@@ -1,0 +1,211 @@
+// TsdfVolume: block storage, the block hash map and voxel queries.
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <utility>
+
+#include "planesdf/error.hpp"
+#include "planesdf/tsdf.hpp"
+
+namespace planesdf {
+
+namespace {
+
+constexpr std::uint64_t kEmptyKey = detail::kEmptyBlockKey;
+// Estimated bookkeeping the allocator adds to each block allocation (glibc: 16 bytes).
+constexpr std::size_t kAllocatorOverhead = 16;
+
+inline int floorToInt(double x) {
+  const int i = static_cast<int>(x);
+  return i - (x < i ? 1 : 0);
+}
+
+}  // namespace
+
+// ---- BlockHashMap ---------------------------------------------------------------------------
+
+std::pair<std::uint32_t, bool> BlockHashMap::insert(std::uint64_t key, std::uint32_t value) {
+  if ((size_ + 1) * 2 > keys_.size()) rehash(std::max<std::size_t>(16, keys_.size() * 2));
+  for (std::size_t i = detail::mixBlockKey(key) & mask_;; i = (i + 1) & mask_) {
+    const std::uint64_t k = keys_[i];
+    if (k == key) return {values_[i], false};
+    if (k == kEmptyKey) {
+      keys_[i] = key;
+      values_[i] = value;
+      ++size_;
+      return {value, true};
+    }
+  }
+}
+
+void BlockHashMap::clear() {
+  std::fill(keys_.begin(), keys_.end(), kEmptyKey);
+  size_ = 0;
+}
+
+void BlockHashMap::reserve(std::size_t n) {
+  std::size_t cap = 16;
+  while (cap < 2 * n) cap *= 2;
+  if (cap > keys_.size()) rehash(cap);
+}
+
+std::size_t BlockHashMap::memoryBytes() const {
+  return keys_.capacity() * sizeof(std::uint64_t) + values_.capacity() * sizeof(std::uint32_t);
+}
+
+void BlockHashMap::rehash(std::size_t capacity) {
+  const std::vector<std::uint64_t> old_keys = std::move(keys_);
+  const std::vector<std::uint32_t> old_values = std::move(values_);
+  keys_.assign(capacity, kEmptyKey);
+  values_.assign(capacity, kNotFound);
+  mask_ = capacity - 1;
+  size_ = 0;
+  for (std::size_t i = 0; i < old_keys.size(); ++i)
+    if (old_keys[i] != kEmptyKey) insert(old_keys[i], old_values[i]);
+}
+
+// ---- TsdfVolume -----------------------------------------------------------------------------
+
+TsdfVolume::TsdfVolume(double voxel_size, double truncation)
+    : voxel_size_(voxel_size), truncation_(truncation) {
+  if (!(std::isfinite(voxel_size) && voxel_size > 0.0))
+    throw Error("", "tsdf volume: voxel_size must be positive and finite (got " +
+                        std::to_string(voxel_size) + ")");
+  if (!(std::isfinite(truncation) && truncation > 0.0))
+    throw Error("", "tsdf volume: truncation must be positive and finite (got " +
+                        std::to_string(truncation) + ")");
+}
+
+TsdfVolume::TsdfVolume(const Config& cfg) : TsdfVolume(cfg.voxel_size, cfg.truncation()) {}
+
+TsdfVolume::TsdfVolume(const TsdfVolume& other)
+    : voxel_size_(other.voxel_size_),
+      truncation_(other.truncation_),
+      map_(other.map_),
+      lo_(other.lo_),
+      hi_(other.hi_),
+      revision_(other.revision_) {
+  blocks_.reserve(other.blocks_.size());
+  for (const auto& b : other.blocks_) blocks_.push_back(std::make_unique<TsdfBlock>(*b));
+}
+
+TsdfVolume& TsdfVolume::operator=(const TsdfVolume& other) {
+  if (this != &other) *this = TsdfVolume(other);
+  return *this;
+}
+
+std::size_t TsdfVolume::numObservedVoxels() const {
+  std::size_t n = 0;
+  for (const auto& b : blocks_)
+    for (const TsdfVoxel& v : b->voxels) n += v.weight > 0.0f ? 1 : 0;
+  return n;
+}
+
+std::size_t TsdfVolume::memoryBytes() const {
+  return sizeof(*this) + blocks_.capacity() * sizeof(blocks_[0]) +
+         blocks_.size() * (sizeof(TsdfBlock) + kAllocatorOverhead) + map_.memoryBytes();
+}
+
+TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
+  if (!blockIndexInRange(b))
+    throw Error("", "tsdf volume: block index (" + std::to_string(b.x()) + ", " +
+                        std::to_string(b.y()) + ", " + std::to_string(b.z()) +
+                        ") is out of the representable range");
+  const auto slot = static_cast<std::uint32_t>(blocks_.size());
+  const auto [found, inserted] = map_.insert(packBlockKey(b), slot);
+  if (created) *created = inserted;
+  if (!inserted) return *blocks_[found];
+  auto block = std::make_unique<TsdfBlock>();
+  block->index = b;
+  blocks_.push_back(std::move(block));
+  if (blocks_.size() == 1) {
+    lo_ = hi_ = b;
+  } else {
+    lo_ = lo_.cwiseMin(b);
+    hi_ = hi_.cwiseMax(b);
+  }
+  return *blocks_.back();
+}
+
+std::vector<Eigen::Vector3i> TsdfVolume::blockIndices() const {
+  std::vector<Eigen::Vector3i> out;
+  out.reserve(blocks_.size());
+  for (const auto& b : blocks_) out.push_back(b->index);
+  return out;
+}
+
+std::vector<Eigen::Vector3i> TsdfVolume::blocksChangedSince(std::uint64_t revision) const {
+  std::vector<Eigen::Vector3i> out;
+  for (const auto& b : blocks_)
+    if (b->revision > revision) out.push_back(b->index);
+  return out;
+}
+
+bool TsdfVolume::blockBounds(Eigen::Vector3i* lo, Eigen::Vector3i* hi) const {
+  if (blocks_.empty()) return false;
+  if (lo) *lo = lo_;
+  if (hi) *hi = hi_;
+  return true;
+}
+
+void TsdfVolume::clear() {
+  if (blocks_.empty()) return;
+  blocks_.clear();
+  blocks_.shrink_to_fit();
+  map_ = BlockHashMap();
+  lo_.setZero();
+  hi_.setConstant(-1);
+  ++revision_;
+}
+
+Eigen::Vector3i TsdfVolume::voxelIndexAt(const Eigen::Vector3d& p) const {
+  const Eigen::Vector3d g = p / voxel_size_;
+  return Eigen::Vector3i(floorToInt(g.x()), floorToInt(g.y()), floorToInt(g.z()));
+}
+
+Eigen::Vector3i TsdfVolume::blockIndexAt(const Eigen::Vector3d& p) const {
+  return blockOfVoxel(voxelIndexAt(p));
+}
+
+std::optional<TsdfSample> TsdfVolume::sample(const Eigen::Vector3d& p, float min_weight) const {
+  const auto qualifies = [&](const TsdfVoxel* v) {
+    return v && v->weight > 0.0f && v->weight >= min_weight;
+  };
+  // Voxel centres sit at (i + 0.5) * voxel_size: the 8 neighbours of p start at floor(g).
+  const Eigen::Vector3d g = p / voxel_size_ - Eigen::Vector3d::Constant(0.5);
+  const Eigen::Vector3i base(floorToInt(g.x()), floorToInt(g.y()), floorToInt(g.z()));
+  const Eigen::Vector3d f = g - base.cast<double>();
+  std::array<const TsdfVoxel*, 8> n{};
+  const bool one_block = (base.x() & 7) < 7 && (base.y() & 7) < 7 && (base.z() & 7) < 7;
+  const TsdfBlock* blk = one_block ? findBlock(blockOfVoxel(base)) : nullptr;
+  bool all = !one_block || blk;
+  for (int c = 0; c < 8 && all; ++c) {
+    const Eigen::Vector3i v = base + Eigen::Vector3i(c & 1, (c >> 1) & 1, c >> 2);
+    n[c] = blk ? &blk->voxels[linearIndexInBlock(v)] : voxel(v);
+    all = qualifies(n[c]);
+  }
+  if (all) {
+    TsdfSample s;
+    s.interpolated = true;
+    double sdf = 0.0, w = 0.0;
+    for (int c = 0; c < 8; ++c) {
+      const double wx = (c & 1) ? f.x() : 1.0 - f.x();
+      const double wy = ((c >> 1) & 1) ? f.y() : 1.0 - f.y();
+      const double wz = (c >> 2) ? f.z() : 1.0 - f.z();
+      sdf += wx * wy * wz * n[c]->sdf;
+      w += wx * wy * wz * n[c]->weight;
+    }
+    s.sdf = static_cast<float>(sdf);
+    s.weight = static_cast<float>(w);
+    return s;
+  }
+  const TsdfVoxel* nearest = voxel(voxelIndexAt(p));
+  if (!qualifies(nearest)) return std::nullopt;
+  TsdfSample s;
+  s.sdf = nearest->sdf;
+  s.weight = nearest->weight;
+  return s;
+}
+
+}  // namespace planesdf

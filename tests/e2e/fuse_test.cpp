@@ -1,0 +1,98 @@
+// Mapping end to end: the real mOSD scenes fuse and their table is found; `planesdf fuse` on a
+// cloud, on a TUM folder written here, and on bad input.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "analytic_scene.hpp"
+#include "planesdf/height_map.hpp"
+#include "planesdf/io/pcd.hpp"
+#include "planesdf/io/tum.hpp"
+#include "planesdf/map.hpp"
+#include "test_support.hpp"
+
+namespace {
+using namespace planesdf;
+
+TEST(MosdMap, ScenesFuseAndTheTableCarriesTheObjects) {
+  Config cfg;
+  cfg.up_auto = true;
+  for (const char* name : {"learn0", "test31", "test45", "test62"}) {
+    SCOPED_TRACE(name);
+    const PointCloud c = io::readPcd(test::mosdDir() + "/scenes/" + name + ".pcd");
+    const Map m = Map::fromCloud(c, cfg);
+    ASSERT_FALSE(m.planes().empty());
+    // The table: the plane with the largest support, facing the camera (camera y points down).
+    const PlaneSdf* table = &m.planes()[0];
+    for (const auto& ps : m.planes())
+      if (ps.plane.support > table->plane.support) table = &ps;
+    EXPECT_EQ(table->plane.orientation, Plane::Orientation::Horizontal);
+    EXPECT_LT(table->plane.normal.y(), -0.7);
+    EXPECT_GT(table->plane.signedDistance(Eigen::Vector3d::Zero()), 0.3);  // sensor above it
+    // Most valid points within 1.5 cm of the table or above it in the band.
+    std::size_t near = 0;
+    for (const auto& p : c.points)
+      if (PointCloud::isValid(p) && std::abs(table->plane.signedDistance(p.cast<double>())) < 0.015)
+        ++near;
+    EXPECT_GT(static_cast<double>(near) / c.countValid(), 0.3);
+    const ObjectMap om = computeObjectMap(computeHeightMap(table->volume, cfg), cfg);
+    EXPECT_GE(om.numObjects(), 1);  // every mOSD scene has objects on the table
+    EXPECT_GT(m.points().size(), 5000u);
+  }
+}
+
+TEST(FuseCli, CloudToMapAndPictures) {
+  test::TempDir tmp;
+  const std::string out = tmp.file("t31.psdf");
+  const auto r = test::runCli("fuse '" + test::mosdDir() + "/scenes/test31.pcd' --up auto --out '" +
+                              out + "' --pictures '" + tmp.file("pics") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  const Map m = Map::load(out);
+  EXPECT_GE(m.planes().size(), 1u);
+  EXPECT_TRUE(std::filesystem::exists(tmp.file("pics/plane_0_height.png")));
+  EXPECT_TRUE(std::filesystem::exists(tmp.file("pics/plane_0_objects.png")));
+}
+
+TEST(FuseCli, TumFolderWithProgress) {
+  test::TempDir tmp;
+  test::AnalyticScene scene;
+  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
+  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+  Intrinsics k;
+  k.width = 160;
+  k.height = 120;
+  k.fx = k.fy = 130;
+  k.cx = 79.5;
+  k.cy = 59.5;
+  std::vector<DepthFrame> frames;
+  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 6);
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    frames.push_back(test::renderDepth(scene, k, poses[i]));
+    frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(i);
+  }
+  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  const auto r = test::runCli("fuse '" + tmp.file("seq") + "' --out '" + tmp.file("m.psdf") + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("frame 6/6"), std::string::npos) << r.out;
+  const Map m = Map::load(tmp.file("m.psdf"));
+  ASSERT_GE(m.planes().size(), 1u);
+  EXPECT_NEAR(m.planes()[0].plane.offset, 0.0, 0.005);
+  EXPECT_EQ(m.frames(), 6u);
+}
+
+TEST(FuseCli, BadInputsAreOneLineErrors) {
+  test::TempDir tmp;
+  auto r = test::runCli("fuse '" + tmp.path() + "' --out '" + tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("not a TUM"), std::string::npos) << r.out;
+  test::writeBytes(tmp.file("junk.psdf"), "PSDFMAP");
+  r = test::runCli("fuse '" + tmp.file("junk.psdf") + "' --out '" + tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("junk.psdf"), std::string::npos) << r.out;
+  r = test::runCli("fuse x.pcd --up 0,0 --out '" + tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("--up"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists(tmp.file("m.psdf")));
+}
+
+}  // namespace
