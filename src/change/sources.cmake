@@ -1,1 +1,1 @@
-set(PLANESDF_CHANGE_SOURCES)
+set(PLANESDF_CHANGE_SOURCES validation.cpp registration.cpp comparison.cpp)

@@ -1,0 +1,77 @@
+#pragma once
+/// \file comparison.hpp
+/// Height-map comparison (paper §III-C, eq. 2), mask cleaning and changed blobs (DESIGN §2 rows
+/// "height comparison", "mask cleaning", "blobs").
+///
+/// Every mask here is on the SOURCE grid. A source cell is
+///   * unknown when it is unobserved, or when any of the 2x2 target cells eq. 2 needs is
+///     unobserved or outside the target grid (conservative: unknown is never changed);
+///   * changed when all four target cells differ from its height by more than cfg.delta_h;
+///   * unchanged otherwise.
+/// Heights are floats, so "more than delta_h" means > delta_h + kHeightCompareTolerance: a
+/// difference of exactly delta_h (as floats) is unchanged.
+
+#include <Eigen/Core>
+
+#include <vector>
+
+#include "planesdf/config.hpp"
+#include "planesdf/height_map.hpp"
+#include "planesdf/types.hpp"
+
+namespace planesdf {
+
+/// Slack (m) added to delta_h to absorb float rounding of the heights.
+constexpr double kHeightCompareTolerance = 1e-6;
+
+/// Paper eq. 2. Each source cell centre (u, v, H(x, y)) is mapped by `T_target_source_local`
+/// into the target plane frame; with (x', y') its continuous target cell coordinates (cell
+/// centres at integer + 0.5), the four target cells around it are (x0 + i, y0 + j), i, j in
+/// {0, 1}, x0 = floor(x' - 0.5), y0 = floor(y' - 0.5) (a point exactly on the centre of a last
+/// column / row cell takes the in-grid pair: the tie is resolved inward). Output on the source grid
+/// (1 = changed). `unknown`, when given, receives the unknown cells (same geometry). Throws
+/// planesdf::Error("config", ...) when delta_h is not positive and finite, and
+/// planesdf::Error("height map", ...) when a map's cell array does not match its size.
+Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
+                         const Pose& T_target_source_local, const Config& cfg,
+                         Mask2D* unknown = nullptr);
+
+/// The paper's cleaning: removeSmallComponents(mask, cfg.min_change_cells) (8-connected), then
+/// dilate(…, cfg.dilation_cells). Throws planesdf::Error("config", ...) on negative values.
+Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg);
+
+/// A changed region grown to whole objects.
+struct Blob {
+  Mask2D mask;                                         ///< the blob's cells (source grid)
+  std::vector<Eigen::Vector2i> cells;                  ///< the same cells, raster order (y, then x)
+  std::vector<int> object_labels;                      ///< object-map labels it covers, ascending
+  int area = 0;                                        ///< cells
+  Eigen::Vector2i bbox_min = Eigen::Vector2i::Zero();  ///< cell (x, y), inclusive
+  Eigen::Vector2i bbox_max = Eigen::Vector2i::Zero();  ///< cell (x, y), inclusive
+};
+
+/// The connected components (8-connected) of (cleaned ∩ object cells of `src_objects`), each
+/// grown to the whole object-map component(s) it overlaps; components growing into a common
+/// object are merged into one blob. Changed cells off any object are not blobs (in the
+/// source→target direction they are places where something appeared: the reverse run reports
+/// them). Blobs are ordered by their smallest object label. Throws planesdf::Error("change", ...)
+/// when the two grids differ.
+std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects);
+
+/// Every stage of the 2D change detection of one registered plane pair, so callers can save a
+/// picture per stage.
+struct HeightChange {
+  Mask2D raw;               ///< compareHeightMaps
+  Mask2D unknown;           ///< cells that could not be compared
+  Mask2D filtered;          ///< raw without components smaller than cfg.min_change_cells
+  Mask2D cleaned;           ///< filtered, dilated by cfg.dilation_cells (= cleanChangeMask(raw))
+  Mask2D blob_mask;         ///< union of the blobs' cells
+  std::vector<Blob> blobs;  ///< changedBlobs(cleaned, src_objects)
+};
+
+/// compareHeightMaps, cleanChangeMask and changedBlobs in a row.
+HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
+                                const ObjectMap& src_objects, const Pose& T_target_source_local,
+                                const Config& cfg);
+
+}  // namespace planesdf

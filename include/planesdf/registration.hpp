@@ -1,0 +1,113 @@
+#pragma once
+/// \file registration.hpp
+/// PlaneSDF registration (paper §III-B, DESIGN §2 row "registration") and the in-plane
+/// (u, v, yaw) refinement from static height-map structure (DESIGN §2, beyond the paper).
+///
+/// Both sessions are assumed to share one world frame; registration only absorbs small drift.
+/// A source plane i matches a target plane j when
+///   * n_i·n_j >= cfg.delta_n (same free side),
+///   * |offset gap| <= cfg.delta_d, where the gap is the signed distance of the source plane's
+///     anchor point (the centre of its extent, or its frame origin when the extent is empty) to
+///     the target plane — for parallel planes this is d_j - d_i with the paper's (n, d),
+///   * their in-plane extents overlap: the source extent, carried into the target frame by the
+///     correction below, intersects the target extent grown by kRegistrationExtentMargin.
+///     Planes with an empty extent (nothing observed yet) skip this test.
+/// Each source plane keeps its best target: the largest overlap area, ties (within 1e-9 m²)
+/// broken by the smallest |gap|. Several source planes may take the same target.
+///
+/// The relative transform (see planeCorrection) is
+///   T_target_source_local = frame_t^{-1} * C * frame_s,
+/// where C is the world correction moving the source plane onto the target plane with minimal
+/// motion. T maps source plane-local (u, v, h) to target plane-local (u', v', h') with h' == h:
+/// it is a yaw about the plane normal plus an in-plane translation.
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <vector>
+
+#include "planesdf/config.hpp"
+#include "planesdf/height_map.hpp"
+#include "planesdf/map.hpp"
+#include "planesdf/plane.hpp"
+#include "planesdf/types.hpp"
+
+namespace planesdf {
+
+/// Margin (m) by which the target extent is grown before the overlap test of registerPlanes.
+constexpr double kRegistrationExtentMargin = 0.05;
+
+/// One registered pair of planes.
+struct PlaneMatch {
+  int source_id = -1;  ///< Plane::id in the source map (or index when ids are -1)
+  int target_id = -1;  ///< Plane::id in the target map (or index when ids are -1)
+  /// Maps source plane-local (u, v, h) to target plane-local (u, v, h):
+  /// frame_t^{-1} * planeCorrection(source, target) * frame_s.
+  Pose T_target_source_local = Pose::Identity();
+  double cos_normal = 0.0;  ///< n_s·n_t
+  double offset_gap = 0.0;  ///< signed distance (m) of the source anchor to the target plane
+  double overlap = 0.0;     ///< overlap area (m²) of the extents; 0 when an extent is empty
+};
+
+/// The world correction C taking the source plane onto the target plane with minimal motion:
+/// the smallest rotation R taking n_s onto n_t, about the source anchor p (centre of the source
+/// extent on the plane, or its frame origin), followed by a shift along n_t by minus the target
+/// signed distance of p: C(x) = R (x - p) + p - n_t (n_t·p + d_t). Points of the source plane land
+/// on the target plane; heights above the plane are preserved.
+Pose planeCorrection(const Plane& source, const Plane& target);
+
+/// frame_t^{-1} * planeCorrection(source, target) * frame_s (see the file comment).
+Pose relativePlaneTransform(const Plane& source, const Plane& target);
+
+/// The world point of the source plane used as anchor: its extent centre (u, v, 0) when the
+/// extent is non-empty, else its frame origin.
+Eigen::Vector3d planeAnchor(const Plane& plane);
+
+/// Matches every source plane to its best target plane (see the file comment). Result ordered
+/// by source plane. Ids are Plane::id, or the vector index when the id is negative. Throws
+/// planesdf::Error("config", ...) when delta_n is not in [-1, 1] or delta_d is negative/NaN.
+std::vector<PlaneMatch> registerPlanes(const std::vector<Plane>& source,
+                                       const std::vector<Plane>& target, const Config& cfg);
+
+/// registerPlanes on the planes of two maps.
+std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, const Config& cfg);
+
+/// Search window of refineInPlane.
+struct InPlaneSearch {
+  double max_shift = 0.04;    ///< m, along u and v (both ways)
+  double shift_step = 0.0;    ///< m; 0 = the target cell size (1-cell steps)
+  double max_yaw_deg = 3.0;   ///< degrees, both ways
+  double yaw_step_deg = 0.5;  ///< degrees
+  int max_cells = 40000;      ///< source cells scored per candidate (evenly subsampled)
+  int min_compared = 50;      ///< fewer cells observed in both: no refinement
+};
+
+/// What refineInPlane found. The correction is a yaw `dyaw` about `pivot` followed by a shift
+/// (du, dv), both in the target plane frame, applied after the initial T.
+struct InPlaneRefinement {
+  bool applied = false;                             ///< T was changed
+  double du = 0.0;                                  ///< m
+  double dv = 0.0;                                  ///< m
+  double dyaw = 0.0;                                ///< rad
+  Eigen::Vector2d pivot = Eigen::Vector2d::Zero();  ///< target-local (u, v)
+  int compared_before = 0;    ///< source cells observed in both maps, initial T
+  int compared_after = 0;     ///< same with the refined T
+  int mismatches_before = 0;  ///< of those, cells with |H - H'| > delta_h (nearest target cell)
+  int mismatches_after = 0;
+  double mean_abs_before = 0.0;  ///< mean |H - H'| (m, each term capped at 4 delta_h)
+  double mean_abs_after = 0.0;
+};
+
+/// Refines the in-plane part of `T_target_source_local` so that cells observed in both height
+/// maps agree best. Exhaustive search over a yaw (about the centre of the source grid mapped by
+/// T) and a shift (du, dv) on the grid of `search`; the cost of a candidate is the fraction of
+/// compared source cells whose nearest target cell differs by more than cfg.delta_h, ties broken
+/// by the mean capped absolute difference, then by the smaller motion. Candidates comparing fewer
+/// than half the initial cells (or fewer than search.min_compared) are skipped. T becomes
+/// Δ * T only when the cost strictly improves. Empty or non-overlapping maps: nothing is done.
+/// Does not read cfg.refine_inplane (the caller decides whether to refine).
+InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
+                                Pose& T_target_source_local, const Config& cfg,
+                                const InPlaneSearch& search = InPlaneSearch{});
+
+}  // namespace planesdf

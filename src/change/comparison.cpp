@@ -1,0 +1,182 @@
+// Height-map comparison (paper eq. 2), mask cleaning and changed blobs; see comparison.hpp.
+
+#include "planesdf/comparison.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "planesdf/error.hpp"
+
+namespace planesdf {
+namespace {
+
+constexpr double kCentreTieEps = 1e-6;  ///< cells
+
+void checkHeights(const HeightMap& hm) {
+  if (hm.width < 0 || hm.height < 0 || hm.heights.size() != hm.numCells()) {
+    throw Error("height map", "cell array does not match the grid size");
+  }
+}
+
+}  // namespace
+
+Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
+                         const Pose& T_target_source_local, const Config& cfg, Mask2D* unknown) {
+  if (!(cfg.delta_h > 0.0) || !std::isfinite(cfg.delta_h)) {
+    throw Error("config",
+                "delta_h must be positive and finite, got " + std::to_string(cfg.delta_h));
+  }
+  checkHeights(src);
+  checkHeights(tgt);
+  Mask2D changed = Mask2D::zeros(src.geometry());
+  Mask2D unk = Mask2D::zeros(src.geometry());
+  const double thr = cfg.delta_h + kHeightCompareTolerance;
+  const bool tgt_ok = !tgt.empty() && tgt.cell_size > 0.0;
+  const double inv = tgt_ok ? 1.0 / tgt.cell_size : 0.0;
+  for (int y = 0; y < src.height; ++y) {
+    for (int x = 0; x < src.width; ++x) {
+      const float h = src.at(x, y);
+      if (h == kUnobserved || !tgt_ok) {
+        unk.set(x, y);
+        continue;
+      }
+      const Eigen::Vector2d c = src.cellCenter(x, y);
+      const Eigen::Vector3d p = T_target_source_local * Eigen::Vector3d(c.x(), c.y(), h);
+      // Continuous target cell coordinates: cell k has its centre at k + 0.5.
+      const double fx = p.x() * inv - tgt.i0 - 0.5;
+      const double fy = p.y() * inv - tgt.j0 - 0.5;
+      if (!(std::isfinite(fx) && std::isfinite(fy)) || fx < -1.0 || fy < -1.0 || fx >= tgt.width ||
+          fy >= tgt.height) {
+        unk.set(x, y);
+        continue;
+      }
+      int x0 = static_cast<int>(std::floor(fx));
+      int y0 = static_cast<int>(std::floor(fy));
+      // A point exactly on a cell centre is equally near both neighbour columns / rows: take
+      // the pair inside the grid (the last column / row stays comparable with identity T).
+      if (x0 + 1 >= tgt.width && fx - x0 < kCentreTieEps) --x0;
+      if (y0 + 1 >= tgt.height && fy - y0 < kCentreTieEps) --y0;
+      bool any_unknown = false;
+      int within = 0;
+      for (int j = 0; j < 2 && !any_unknown; ++j) {
+        for (int i = 0; i < 2; ++i) {
+          const int tx = x0 + i;
+          const int ty = y0 + j;
+          if (!tgt.inBounds(tx, ty) || tgt.at(tx, ty) == kUnobserved) {
+            any_unknown = true;
+            break;
+          }
+          const double diff =
+              std::abs(static_cast<double>(tgt.at(tx, ty)) - static_cast<double>(h));
+          if (diff <= thr) ++within;
+        }
+      }
+      if (any_unknown) {
+        unk.set(x, y);
+      } else if (within == 0) {
+        changed.set(x, y);
+      }
+    }
+  }
+  if (unknown != nullptr) *unknown = std::move(unk);
+  return changed;
+}
+
+Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg) {
+  if (cfg.min_change_cells < 0) {
+    throw Error("config",
+                "min_change_cells must be >= 0, got " + std::to_string(cfg.min_change_cells));
+  }
+  if (cfg.dilation_cells < 0) {
+    throw Error("config", "dilation_cells must be >= 0, got " + std::to_string(cfg.dilation_cells));
+  }
+  return dilate(removeSmallComponents(mask, cfg.min_change_cells), cfg.dilation_cells);
+}
+
+std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects) {
+  if (!cleaned.sameGeometry(src_objects.geometry()) || cleaned.cells.size() != cleaned.numCells() ||
+      src_objects.labels.size() != src_objects.numCells()) {
+    throw Error("change", "change mask and object map have different grids");
+  }
+  const int n_obj = src_objects.numObjects();
+  // Components of (mask ∩ object cells); each one's objects are grouped by union-find, so a
+  // component touching several objects (other connectivity) and objects touched by several
+  // components end up in one blob.
+  Mask2D inter = Mask2D::zeros(cleaned.geometry());
+  for (std::size_t i = 0; i < inter.cells.size(); ++i) {
+    const int l = src_objects.labels[i];
+    inter.cells[i] = (cleaned.cells[i] != 0 && l > 0 && l <= n_obj) ? 1 : 0;
+  }
+  const Components comps = connectedComponents(inter, 1, 8);
+  std::vector<int> parent(static_cast<std::size_t>(n_obj) + 1);
+  for (std::size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
+  auto find = [&parent](int a) {
+    while (parent[a] != a) a = parent[a] = parent[parent[a]];
+    return a;
+  };
+  std::vector<int> comp_first(static_cast<std::size_t>(comps.count()) + 1, 0);
+  std::vector<char> hit(static_cast<std::size_t>(n_obj) + 1, 0);
+  for (std::size_t i = 0; i < inter.cells.size(); ++i) {
+    const int c = comps.labels[i];
+    if (c <= 0) continue;
+    const int l = src_objects.labels[i];
+    hit[l] = 1;
+    if (comp_first[c] == 0) {
+      comp_first[c] = l;
+    } else {
+      const int a = find(comp_first[c]);
+      const int b = find(l);
+      if (a != b) parent[std::max(a, b)] = std::min(a, b);
+    }
+  }
+  // One blob per root among the hit objects, ordered by smallest label (= the root).
+  std::vector<int> blob_of(static_cast<std::size_t>(n_obj) + 1, -1);
+  std::vector<Blob> blobs;
+  for (int l = 1; l <= n_obj; ++l) {
+    if (!hit[l]) continue;
+    const int r = find(l);
+    if (blob_of[r] < 0) {
+      blob_of[r] = static_cast<int>(blobs.size());
+      Blob b;
+      b.mask = Mask2D::zeros(cleaned.geometry());
+      b.bbox_min = Eigen::Vector2i(cleaned.width, cleaned.height);
+      b.bbox_max = Eigen::Vector2i(-1, -1);
+      blobs.push_back(std::move(b));
+    }
+    blob_of[l] = blob_of[r];
+    blobs[static_cast<std::size_t>(blob_of[r])].object_labels.push_back(l);
+  }
+  for (int y = 0; y < cleaned.height; ++y) {
+    for (int x = 0; x < cleaned.width; ++x) {
+      const int l = src_objects.at(x, y);
+      if (l <= 0 || l > n_obj || blob_of[l] < 0) continue;
+      Blob& b = blobs[static_cast<std::size_t>(blob_of[l])];
+      b.mask.set(x, y);
+      b.cells.emplace_back(x, y);
+      ++b.area;
+      b.bbox_min = b.bbox_min.cwiseMin(Eigen::Vector2i(x, y));
+      b.bbox_max = b.bbox_max.cwiseMax(Eigen::Vector2i(x, y));
+    }
+  }
+  return blobs;
+}
+
+HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
+                                const ObjectMap& src_objects, const Pose& T_target_source_local,
+                                const Config& cfg) {
+  HeightChange out;
+  out.raw = compareHeightMaps(src, tgt, T_target_source_local, cfg, &out.unknown);
+  out.cleaned = cleanChangeMask(out.raw, cfg);  // validates the cleaning parameters
+  out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
+  out.blobs = changedBlobs(out.cleaned, src_objects);
+  out.blob_mask = Mask2D::zeros(src.geometry());
+  for (const Blob& b : out.blobs) {
+    for (const Eigen::Vector2i& c : b.cells) out.blob_mask.set(c.x(), c.y());
+  }
+  return out;
+}
+
+}  // namespace planesdf

@@ -1,0 +1,274 @@
+// PlaneSDF registration (paper §III-B) and in-plane (u, v, yaw) refinement; see registration.hpp.
+
+#include "planesdf/registration.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "planesdf/error.hpp"
+
+namespace planesdf {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+void validateRegistrationConfig(const Config& cfg) {
+  if (!(cfg.delta_n >= -1.0 && cfg.delta_n <= 1.0)) {
+    throw Error("config", "delta_n must be in [-1, 1], got " + std::to_string(cfg.delta_n));
+  }
+  if (!(cfg.delta_d >= 0.0) || !std::isfinite(cfg.delta_d)) {
+    throw Error("config", "delta_d must be finite and >= 0, got " + std::to_string(cfg.delta_d));
+  }
+}
+
+/// Smallest rotation taking unit `a` onto unit `b` (antiparallel: a half turn about an axis
+/// orthogonal to a; never happens for matched planes since delta_n is checked first).
+Eigen::Matrix3d minimalRotation(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  return Eigen::Quaterniond::FromTwoVectors(a, b).toRotationMatrix();
+}
+
+}  // namespace
+
+Eigen::Vector3d planeAnchor(const Plane& plane) {
+  if (plane.extent.isEmpty()) return plane.frame_origin;
+  const Eigen::Vector2d c = plane.extent.center();
+  return plane.toWorld(Eigen::Vector3d(c.x(), c.y(), 0.0));
+}
+
+Pose planeCorrection(const Plane& source, const Plane& target) {
+  const Eigen::Vector3d ns = source.normal.normalized();
+  const Eigen::Vector3d nt = target.normal.normalized();
+  const Eigen::Vector3d p = planeAnchor(source);
+  const Eigen::Matrix3d R = minimalRotation(ns, nt);
+  // C(x) = R (x - p) + p - n_t (n_t·p + d_t)
+  Pose C = Pose::Identity();
+  C.linear() = R;
+  C.translation() = p - R * p - nt * target.signedDistance(p);
+  return C;
+}
+
+Pose relativePlaneTransform(const Plane& source, const Plane& target) {
+  Pose T =
+      target.frame().inverse(Eigen::Isometry) * planeCorrection(source, target) * source.frame();
+  // Exactly a yaw + in-plane shift (removes rounding in the h row / column).
+  Eigen::Matrix3d L = T.linear();
+  const double yaw = std::atan2(L(1, 0), L(0, 0));
+  T.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation().z() = 0.0;
+  return T;
+}
+
+std::vector<PlaneMatch> registerPlanes(const std::vector<Plane>& source,
+                                       const std::vector<Plane>& target, const Config& cfg) {
+  validateRegistrationConfig(cfg);
+  std::vector<PlaneMatch> matches;
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    const Plane& s = source[i];
+    const Eigen::Vector3d ns = s.normal.normalized();
+    const Eigen::Vector3d anchor = planeAnchor(s);
+    bool found = false;
+    PlaneMatch best;
+    for (std::size_t j = 0; j < target.size(); ++j) {
+      const Plane& t = target[j];
+      const Eigen::Vector3d nt = t.normal.normalized();
+      const double cosn = ns.dot(nt);
+      if (!(cosn >= cfg.delta_n)) continue;
+      const double gap = nt.dot(anchor) + t.offset / t.normal.norm();
+      if (!(std::abs(gap) <= cfg.delta_d)) continue;
+      const Pose T = relativePlaneTransform(s, t);
+      double overlap = 0.0;
+      if (!s.extent.isEmpty() && !t.extent.isEmpty()) {
+        Eigen::AlignedBox2d carried;
+        for (int k = 0; k < 4; ++k) {
+          const Eigen::Vector2d c =
+              s.extent.corner(static_cast<Eigen::AlignedBox2d::CornerType>(k));
+          carried.extend((T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>());
+        }
+        Eigen::AlignedBox2d grown = t.extent;
+        grown.min().array() -= kRegistrationExtentMargin;
+        grown.max().array() += kRegistrationExtentMargin;
+        const Eigen::AlignedBox2d inter = carried.intersection(grown);
+        if (inter.isEmpty()) continue;
+        overlap = inter.sizes().prod();
+      }
+      const bool better =
+          !found || overlap > best.overlap + 1e-9 ||
+          (overlap >= best.overlap - 1e-9 && std::abs(gap) < std::abs(best.offset_gap));
+      if (better) {
+        found = true;
+        best.source_id = s.id >= 0 ? s.id : static_cast<int>(i);
+        best.target_id = t.id >= 0 ? t.id : static_cast<int>(j);
+        best.T_target_source_local = T;
+        best.cos_normal = cosn;
+        best.offset_gap = gap;
+        best.overlap = overlap;
+      }
+    }
+    if (found) matches.push_back(best);
+  }
+  return matches;
+}
+
+std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, const Config& cfg) {
+  std::vector<Plane> s;
+  std::vector<Plane> t;
+  for (const PlaneSdf& p : source.planes()) s.push_back(p.plane);
+  for (const PlaneSdf& p : target.planes()) t.push_back(p.plane);
+  return registerPlanes(s, t, cfg);
+}
+
+// --- in-plane refinement ---------------------------------------------------------------------
+
+namespace {
+
+struct Sample {
+  Eigen::Vector2d uv;  ///< source cell centre mapped by the initial T, target-local
+  float h;             ///< source height
+};
+
+struct Score {
+  int compared = 0;
+  int mismatches = 0;
+  double mean_abs = 0.0;
+};
+
+/// Scores the samples moved by a yaw `yaw` about `pivot` then a shift `shift` (target frame).
+Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
+                     const Eigen::Vector2d& pivot, double yaw, const Eigen::Vector2d& shift,
+                     double delta_h) {
+  const double c = std::cos(yaw);
+  const double s = std::sin(yaw);
+  const double inv = 1.0 / tgt.cell_size;
+  const double cap = 4.0 * delta_h;
+  Score sc;
+  double sum = 0.0;
+  for (const Sample& smp : samples) {
+    const Eigen::Vector2d d = smp.uv - pivot;
+    const double u = pivot.x() + c * d.x() - s * d.y() + shift.x();
+    const double v = pivot.y() + s * d.x() + c * d.y() + shift.y();
+    const double fx = std::floor(u * inv) - tgt.i0;
+    const double fy = std::floor(v * inv) - tgt.j0;
+    if (!(fx >= 0.0 && fy >= 0.0 && fx < tgt.width && fy < tgt.height)) continue;
+    const float ht = tgt.at(static_cast<int>(fx), static_cast<int>(fy));
+    if (ht == kUnobserved) continue;
+    const double diff = std::abs(static_cast<double>(ht) - static_cast<double>(smp.h));
+    ++sc.compared;
+    if (diff > delta_h) ++sc.mismatches;
+    sum += std::min(diff, cap);
+  }
+  sc.mean_abs = sc.compared > 0 ? sum / sc.compared : 0.0;
+  return sc;
+}
+
+/// True when `a` is a strictly better cost than `b` (mismatch fraction, then mean |diff|).
+bool better(const Score& a, const Score& b) {
+  const double fa = static_cast<double>(a.mismatches) / a.compared;
+  const double fb = static_cast<double>(b.mismatches) / b.compared;
+  if (fa < fb - 1e-12) return true;
+  if (fa > fb + 1e-12) return false;
+  return a.mean_abs < b.mean_abs - 1e-9;
+}
+
+}  // namespace
+
+InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
+                                Pose& T_target_source_local, const Config& cfg,
+                                const InPlaneSearch& search) {
+  InPlaneRefinement out;
+  if (src.empty() || tgt.empty() || !(tgt.cell_size > 0.0)) return out;
+  if (src.heights.size() != src.numCells() || tgt.heights.size() != tgt.numCells()) {
+    throw Error("height map", "cell array does not match the grid size");
+  }
+  const Pose& T = T_target_source_local;
+
+  // Observed source cells, evenly subsampled to at most max_cells.
+  std::size_t observed = src.numObserved();
+  if (observed == 0) return out;
+  const std::size_t cap = static_cast<std::size_t>(std::max(1, search.max_cells));
+  const std::size_t stride = (observed + cap - 1) / cap;
+  std::vector<Sample> samples;
+  samples.reserve(std::min(observed, cap) + 1);
+  std::size_t k = 0;
+  Eigen::Vector2d lo(std::numeric_limits<double>::infinity(),
+                     std::numeric_limits<double>::infinity());
+  Eigen::Vector2d hi = -lo;
+  for (int y = 0; y < src.height; ++y) {
+    for (int x = 0; x < src.width; ++x) {
+      const float h = src.at(x, y);
+      if (h == kUnobserved) continue;
+      if (k++ % stride != 0) continue;
+      const Eigen::Vector2d c = src.cellCenter(x, y);
+      const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
+      samples.push_back({uv, h});
+      lo = lo.cwiseMin(uv);
+      hi = hi.cwiseMax(uv);
+    }
+  }
+  const Eigen::Vector2d pivot = 0.5 * (lo + hi);
+  out.pivot = pivot;
+
+  const Score initial =
+      scoreCandidate(samples, tgt, pivot, 0.0, Eigen::Vector2d::Zero(), cfg.delta_h);
+  out.compared_before = out.compared_after = initial.compared;
+  out.mismatches_before = out.mismatches_after = initial.mismatches;
+  out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
+  const int min_compared = std::max(search.min_compared, (initial.compared + 1) / 2);
+  if (initial.compared < std::max(1, search.min_compared)) return out;
+
+  const double step = search.shift_step > 0.0 ? search.shift_step : tgt.cell_size;
+  const int ns = static_cast<int>(std::floor(search.max_shift / step + 1e-9));
+  const double ystep = search.yaw_step_deg > 0.0 ? search.yaw_step_deg : 1.0;
+  const int ny = static_cast<int>(std::floor(search.max_yaw_deg / ystep + 1e-9));
+
+  // Candidates in order of increasing motion, so ties keep the smaller correction.
+  struct Cand {
+    int iu, iv, iy;
+    double motion;
+  };
+  std::vector<Cand> cands;
+  for (int iy = -ny; iy <= ny; ++iy) {
+    for (int iv = -ns; iv <= ns; ++iv) {
+      for (int iu = -ns; iu <= ns; ++iu) {
+        if (iu == 0 && iv == 0 && iy == 0) continue;
+        const double m = std::hypot(iu * step, iv * step) + 0.01 * std::abs(iy * ystep);
+        cands.push_back({iu, iv, iy, m});
+      }
+    }
+  }
+  std::stable_sort(cands.begin(), cands.end(),
+                   [](const Cand& a, const Cand& b) { return a.motion < b.motion; });
+
+  Score best = initial;
+  const Cand* best_cand = nullptr;
+  for (const Cand& cd : cands) {
+    const double yaw = cd.iy * ystep * kPi / 180.0;
+    const Score sc = scoreCandidate(samples, tgt, pivot, yaw,
+                                    Eigen::Vector2d(cd.iu * step, cd.iv * step), cfg.delta_h);
+    if (sc.compared < min_compared) continue;
+    if (better(sc, best)) {
+      best = sc;
+      best_cand = &cd;
+    }
+  }
+  if (best_cand == nullptr) return out;
+
+  out.applied = true;
+  out.du = best_cand->iu * step;
+  out.dv = best_cand->iv * step;
+  out.dyaw = best_cand->iy * ystep * kPi / 180.0;
+  out.compared_after = best.compared;
+  out.mismatches_after = best.mismatches;
+  out.mean_abs_after = best.mean_abs;
+  // Δ = Translate(pivot + shift) * RotZ(dyaw) * Translate(-pivot), in the target frame.
+  const Eigen::Vector3d p3(pivot.x(), pivot.y(), 0.0);
+  Pose delta = Pose::Identity();
+  delta.linear() = Eigen::AngleAxisd(out.dyaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  delta.translation() = p3 + Eigen::Vector3d(out.du, out.dv, 0.0) - delta.linear() * p3;
+  T_target_source_local = delta * T_target_source_local;
+  return out;
+}
+
+}  // namespace planesdf

@@ -1,0 +1,317 @@
+// Tests of the height-map comparison (paper eq. 2), mask cleaning, changed blobs and the in-plane
+// refinement, on height maps built by hand: a flat 60x60 map (7 mm cells) with 8 cm boxes.
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "planesdf/comparison.hpp"
+#include "planesdf/config.hpp"
+#include "planesdf/error.hpp"
+#include "planesdf/height_map.hpp"
+#include "planesdf/registration.hpp"
+
+namespace planesdf {
+namespace {
+
+constexpr double kCell = 0.007;
+constexpr int kSize = 60;
+constexpr double kDeg = 3.14159265358979323846 / 180.0;
+
+/// A box [x0, x0 + w) x [y0, y0 + h) in cells of the source grid, `height` metres tall.
+struct Box {
+  int x0, y0, w, h;
+  float height;
+};
+
+GridGeometry grid() {
+  GridGeometry g;
+  g.width = kSize;
+  g.height = kSize;
+  g.cell_size = kCell;
+  return g;
+}
+
+/// The height map of a scene of boxes (given in source-local metres via their cells) seen by a
+/// session whose plane-local frame is `A` * source-local: cell centre c' samples the scene at
+/// A^{-1} c'.
+HeightMap render(const std::vector<Box>& boxes, const Pose& A = Pose::Identity()) {
+  HeightMap hm;
+  static_cast<GridGeometry&>(hm) = grid();
+  hm.heights.assign(hm.numCells(), 0.0f);
+  const Pose inv = A.inverse(Eigen::Isometry);
+  for (int y = 0; y < hm.height; ++y) {
+    for (int x = 0; x < hm.width; ++x) {
+      const Eigen::Vector2d c = hm.cellCenter(x, y);
+      const Eigen::Vector3d q = inv * Eigen::Vector3d(c.x(), c.y(), 0.0);
+      for (const Box& b : boxes) {
+        if (q.x() >= b.x0 * kCell && q.x() < (b.x0 + b.w) * kCell && q.y() >= b.y0 * kCell &&
+            q.y() < (b.y0 + b.h) * kCell) {
+          hm.at(x, y) = std::max(hm.at(x, y), b.height);
+        }
+      }
+    }
+  }
+  return hm;
+}
+
+Pose yawShift(double yaw_rad, double du, double dv) {
+  Pose p = Pose::Identity();
+  p.linear() = Eigen::AngleAxisd(yaw_rad, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  p.translation() = Eigen::Vector3d(du, dv, 0.0);
+  return p;
+}
+
+const Box kObject{25, 25, 10, 10, 0.08f};
+
+TEST(HeightCompare, IdenticalMapsGiveEmptyMask) {
+  const Config cfg;
+  const HeightMap hm = render({kObject});
+  Mask2D unknown;
+  const Mask2D raw = compareHeightMaps(hm, hm, Pose::Identity(), cfg, &unknown);
+  EXPECT_TRUE(raw.sameGeometry(hm.geometry()));
+  EXPECT_EQ(raw.count(), 0u);
+  EXPECT_EQ(unknown.count(), 0u);  // the last column / row stays comparable (inward tie)
+  EXPECT_EQ(cleanChangeMask(raw, cfg).count(), 0u);
+}
+
+TEST(HeightCompare, RemovedObjectCellsAreChanged) {
+  const Config cfg;
+  const HeightMap src = render({kObject});
+  const HeightMap tgt = render({});
+  const HeightChange hc =
+      detectHeightChange(src, tgt, computeObjectMap(src, cfg), Pose::Identity(), cfg);
+  EXPECT_EQ(hc.raw.count(), 100u);
+  for (int y = 25; y < 35; ++y) {
+    for (int x = 25; x < 35; ++x) EXPECT_TRUE(hc.raw.at(x, y));
+  }
+  EXPECT_EQ(hc.filtered.count(), 100u);
+  EXPECT_EQ(hc.cleaned.count(), 144u);  // 10x10 dilated by one cell
+  ASSERT_EQ(hc.blobs.size(), 1u);
+  EXPECT_EQ(hc.blobs[0].area, 100);
+  EXPECT_EQ(hc.blob_mask.count(), 100u);
+  EXPECT_EQ(hc.blobs[0].bbox_min, Eigen::Vector2i(25, 25));
+  EXPECT_EQ(hc.blobs[0].bbox_max, Eigen::Vector2i(34, 34));
+}
+
+TEST(HeightCompare, UnobservedTargetIsUnknownNotChanged) {
+  const Config cfg;
+  const HeightMap src = render({kObject});
+  HeightMap tgt = render({});
+  for (int y = 24; y < 36; ++y) {
+    for (int x = 24; x < 36; ++x) tgt.at(x, y) = kUnobserved;
+  }
+  Mask2D unknown;
+  const Mask2D raw = compareHeightMaps(src, tgt, Pose::Identity(), cfg, &unknown);
+  EXPECT_EQ(raw.count(), 0u);
+  for (int y = 25; y < 35; ++y) {
+    for (int x = 25; x < 35; ++x) EXPECT_TRUE(unknown.at(x, y));
+  }
+  // One unobserved neighbour among the four is enough to make a cell unknown.
+  HeightMap tgt2 = render({});
+  tgt2.at(30, 30) = kUnobserved;
+  Mask2D unknown2;
+  const Mask2D raw2 =
+      compareHeightMaps(src, tgt2, yawShift(0.0, 0.5 * kCell, 0.5 * kCell), cfg, &unknown2);
+  // Shifted by half a cell, source cells 29..30 x 29..30 all need target cell (30, 30).
+  for (int y = 29; y <= 30; ++y) {
+    for (int x = 29; x <= 30; ++x) {
+      EXPECT_FALSE(raw2.at(x, y));
+      EXPECT_TRUE(unknown2.at(x, y));
+    }
+  }
+  EXPECT_EQ(raw2.count(), 96u);
+  // An unobserved source cell is unknown too; cells mapped outside the target are unknown.
+  HeightMap src3 = src;
+  src3.at(30, 30) = kUnobserved;
+  Mask2D unknown3;
+  const Mask2D raw3 = compareHeightMaps(src3, tgt, yawShift(0.0, 0.1, 0.0), cfg, &unknown3);
+  EXPECT_TRUE(unknown3.at(30, 30));
+  EXPECT_TRUE(unknown3.at(kSize - 1, 10));
+  EXPECT_FALSE(raw3.at(kSize - 1, 10));
+}
+
+TEST(HeightCompare, SmallNoiseIsNoChangeAfterCleaning) {
+  const Config cfg;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> noise(-0.005f, 0.005f);
+  HeightMap src = render({kObject});
+  HeightMap tgt = render({kObject});
+  for (float& h : src.heights) h = std::max(0.0f, h + noise(rng));
+  for (float& h : tgt.heights) h = std::max(0.0f, h + noise(rng));
+  const Mask2D raw = compareHeightMaps(src, tgt, Pose::Identity(), cfg);
+  EXPECT_EQ(raw.count(), 0u);
+  EXPECT_EQ(cleanChangeMask(raw, cfg).count(), 0u);
+}
+
+TEST(HeightCompare, DifferenceOfExactlyDeltaHIsUnchanged) {
+  const Config cfg;  // delta_h = 0.02
+  HeightMap src = render({});
+  HeightMap tgt = render({});
+  src.at(10, 10) = 0.08f;
+  tgt.at(10, 10) = tgt.at(11, 10) = tgt.at(10, 11) = tgt.at(11, 11) = 0.06f;  // exactly 2 cm
+  src.at(40, 40) = 0.0f;
+  tgt.at(40, 40) = tgt.at(41, 40) = tgt.at(40, 41) = tgt.at(41, 41) = 0.02f;
+  src.at(20, 20) = 0.0f;
+  tgt.at(20, 20) = tgt.at(21, 20) = tgt.at(20, 21) = tgt.at(21, 21) = 0.0201f;
+  src.at(50, 20) = 0.1f;  // three neighbours differ, one agrees -> unchanged
+  tgt.at(51, 20) = tgt.at(50, 21) = tgt.at(51, 21) = 0.05f;
+  tgt.at(50, 20) = 0.1f;
+  const Mask2D raw = compareHeightMaps(src, tgt, Pose::Identity(), cfg);
+  EXPECT_FALSE(raw.at(10, 10));
+  EXPECT_FALSE(raw.at(40, 40));
+  EXPECT_TRUE(raw.at(20, 20));
+  EXPECT_FALSE(raw.at(50, 20));
+}
+
+TEST(HeightCompare, UsesTheFourCellsAroundTheProjectedPoint) {
+  const Config cfg;
+  HeightMap src = render({});
+  HeightMap tgt = render({});
+  src.at(30, 30) = 0.1f;
+  // Shifted by +0.6 cell: the point sits between target cells 30/31 (x) and 30/31 (y).
+  const Pose T = yawShift(0.0, 0.6 * kCell, 0.6 * kCell);
+  tgt.at(31, 31) = 0.1f;
+  EXPECT_FALSE(compareHeightMaps(src, tgt, T, cfg).at(30, 30));
+  tgt.at(31, 31) = 0.0f;
+  tgt.at(32, 32) = 0.1f;  // outside the 2x2 neighbourhood
+  EXPECT_TRUE(compareHeightMaps(src, tgt, T, cfg).at(30, 30));
+}
+
+TEST(HeightCompare, BlobsGrowToWholeObjectComponent) {
+  Config cfg;
+  HeightMap src = render({{10, 10, 12, 4, 0.08f}, {10, 14, 4, 10, 0.08f}, {40, 40, 6, 6, 0.05f}});
+  const ObjectMap objects = computeObjectMap(src, cfg);
+  ASSERT_EQ(objects.numObjects(), 2);
+  Mask2D mask = Mask2D::zeros(src.geometry());
+  for (int y = 20; y < 24; ++y) {
+    for (int x = 8; x < 12; ++x) mask.set(x, y);  // touches the L-shaped object's foot only
+  }
+  const std::vector<Blob> blobs = changedBlobs(mask, objects);
+  ASSERT_EQ(blobs.size(), 1u);
+  EXPECT_EQ(blobs[0].area, 12 * 4 + 4 * 10);
+  EXPECT_EQ(blobs[0].cells.size(), 88u);
+  EXPECT_EQ(blobs[0].mask.count(), 88u);
+  EXPECT_EQ(blobs[0].object_labels, std::vector<int>{objects.at(10, 10)});
+  EXPECT_EQ(blobs[0].bbox_min, Eigen::Vector2i(10, 10));
+  EXPECT_EQ(blobs[0].bbox_max, Eigen::Vector2i(21, 23));
+  // A mask off every object gives no blob; mismatched grids throw.
+  Mask2D off = Mask2D::zeros(src.geometry());
+  off.set(55, 5);
+  EXPECT_TRUE(changedBlobs(off, objects).empty());
+  GridGeometry other = src.geometry();
+  other.width = 10;
+  EXPECT_THROW(changedBlobs(Mask2D::zeros(other), objects), Error);
+}
+
+TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {
+  const Config cfg;
+  const std::vector<Box> scene{kObject, {8, 40, 6, 12, 0.05f}};
+  const HeightMap src = render(scene);
+  for (int cells : {2, 3}) {  // 14 mm and 21 mm drift along u and v
+    SCOPED_TRACE(cells);
+    const double d = cells * kCell;
+    const HeightMap tgt = render(scene, yawShift(0.0, d, d));
+    Pose T = Pose::Identity();
+    const Mask2D before = compareHeightMaps(src, tgt, T, cfg);
+    // A ring of false change around both objects (2 cells: 68 cells in 1-cell-wide L shapes,
+    // each below min_change_cells; 3 cells: 2-cell-wide L shapes that survive cleaning).
+    EXPECT_GE(before.count(), 60u);
+    if (cells == 3) {
+      EXPECT_GT(cleanChangeMask(before, cfg).count(), 0u);
+    }
+    const InPlaneRefinement r = refineInPlane(src, tgt, T, cfg);
+    EXPECT_TRUE(r.applied);
+    EXPECT_EQ(r.mismatches_after, 0);
+    EXPECT_LT(r.mismatches_after, r.mismatches_before);
+    EXPECT_NEAR(r.du, d, kCell + 1e-9);
+    EXPECT_NEAR(r.dv, d, kCell + 1e-9);
+    EXPECT_NEAR(r.dyaw, 0.0, 1e-12);
+    EXPECT_NEAR(T.translation().x(), d, kCell + 1e-9);
+    const Mask2D after = compareHeightMaps(src, tgt, T, cfg);
+    EXPECT_EQ(after.count(), 0u);
+    EXPECT_EQ(cleanChangeMask(after, cfg).count(), 0u);
+  }
+}
+
+TEST(HeightCompare, YawOfTwoDegreesIsRemovedByRefinement) {
+  const Config cfg;
+  const std::vector<Box> scene{
+      {40, 42, 10, 10, 0.08f}, {44, 8, 8, 14, 0.06f}, {6, 44, 12, 6, 0.1f}};
+  const HeightMap src = render(scene);
+  const HeightMap tgt = render(scene, yawShift(2.0 * kDeg, 0.0, 0.0));
+  Pose T = Pose::Identity();
+  const HeightChange before = detectHeightChange(src, tgt, computeObjectMap(src, cfg), T, cfg);
+  EXPECT_GE(before.raw.count(), 90u);
+  EXPECT_GT(before.cleaned.count(), 0u);  // survives cleaning: a false blob
+  EXPECT_FALSE(before.blobs.empty());
+  const InPlaneRefinement r = refineInPlane(src, tgt, T, cfg);
+  EXPECT_TRUE(r.applied);
+  EXPECT_NEAR(r.dyaw, 2.0 * kDeg, 0.5 * kDeg + 1e-9);
+  const HeightChange after = detectHeightChange(src, tgt, computeObjectMap(src, cfg), T, cfg);
+  EXPECT_EQ(after.raw.count(), 0u);
+  EXPECT_TRUE(after.blobs.empty());
+}
+
+TEST(HeightCompare, ShiftAndYawTogetherButRealRemovalStays) {
+  const Config cfg;
+  const std::vector<Box> statics{
+      {40, 42, 10, 10, 0.08f}, {44, 8, 8, 14, 0.06f}, {6, 44, 12, 6, 0.1f}};
+  std::vector<Box> src_scene = statics;
+  src_scene.push_back({12, 12, 10, 10, 0.08f});  // removed in the target
+  const HeightMap src = render(src_scene);
+  const HeightMap tgt = render(statics, yawShift(-2.0 * kDeg, 0.02, -0.015));
+  Pose T = Pose::Identity();
+  refineInPlane(src, tgt, T, cfg);
+  const HeightChange hc = detectHeightChange(src, tgt, computeObjectMap(src, cfg), T, cfg);
+  ASSERT_EQ(hc.blobs.size(), 1u);
+  EXPECT_EQ(hc.blobs[0].area, 100);
+  EXPECT_EQ(hc.blobs[0].bbox_min, Eigen::Vector2i(12, 12));
+  EXPECT_EQ(hc.filtered.count(), hc.raw.count());
+  EXPECT_EQ(hc.raw.count(), 100u);  // exactly the removed object, no false ring
+}
+
+TEST(HeightCompare, RefinementKeepsAlignedMapsAndHandlesEmpty) {
+  const Config cfg;
+  const HeightMap hm = render({kObject});
+  Pose T = Pose::Identity();
+  const InPlaneRefinement r = refineInPlane(hm, hm, T, cfg);
+  EXPECT_FALSE(r.applied);
+  EXPECT_EQ(r.mismatches_before, 0);
+  EXPECT_TRUE(T.isApprox(Pose::Identity()));
+  // Flat maps carry no in-plane information: nothing moves.
+  const HeightMap flat = render({});
+  EXPECT_FALSE(refineInPlane(flat, flat, T, cfg).applied);
+  EXPECT_FALSE(refineInPlane(HeightMap{}, hm, T, cfg).applied);
+  EXPECT_TRUE(T.isApprox(Pose::Identity()));
+}
+
+TEST(HeightCompare, InvalidConfigThrows) {
+  Config cfg;
+  const HeightMap hm = render({});
+  cfg.delta_h = 0.0;
+  EXPECT_THROW(compareHeightMaps(hm, hm, Pose::Identity(), cfg), Error);
+  cfg = Config{};
+  cfg.min_change_cells = -1;
+  EXPECT_THROW(cleanChangeMask(Mask2D::zeros(hm.geometry()), cfg), Error);
+  HeightMap bad = hm;
+  bad.heights.pop_back();
+  EXPECT_THROW(compareHeightMaps(bad, hm, Pose::Identity(), Config{}), Error);
+}
+
+TEST(HeightCompare, CleaningDropsSmallComponentsThenDilates) {
+  Config cfg;
+  Mask2D m = Mask2D::zeros(grid());
+  for (int x = 5; x < 24; ++x) m.set(x, 5);   // 19 cells: dropped
+  for (int x = 5; x < 25; ++x) m.set(x, 30);  // 20 cells: kept
+  const Mask2D c = cleanChangeMask(m, cfg);
+  EXPECT_EQ(c.count(), 22u * 3u);
+  EXPECT_FALSE(c.at(10, 5));
+  cfg.dilation_cells = 0;
+  EXPECT_EQ(cleanChangeMask(m, cfg).count(), 20u);
+}
+
+}  // namespace
+}  // namespace planesdf
