@@ -92,8 +92,7 @@ class Map {
   IntegrateStats integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
                                 bool whole_cloud);
   void keepPoints(const std::vector<Eigen::Vector3f>& points_world, bool deduplicate);
-  IntegrateStats fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
-                           const std::vector<Eigen::Vector3f>& points_world);
+  IntegrateStats fuseDepth(const DepthFrame& frame, const Pose& camera_to_world);
 
   Config cfg_;
   PlaneTracker tracker_;

@@ -58,7 +58,7 @@ void checkFrame(const DepthFrame& frame) {
 /// Orients splat normals of an unorganised cloud without a sensor: toward the plane's free side
 /// where the surface faces up (|n·N| >= 0.5), else away from the centroid of the in-band points
 /// within 5 cm (so sides of convex objects face outward).
-void orientWithoutSensor(const Plane& plane, const std::vector<Eigen::Vector3f>& pts_local,
+void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
                          std::vector<Eigen::Vector3f>& normals_local) {
   const double cell = 0.05;
   struct Acc {
@@ -76,7 +76,6 @@ void orientWithoutSensor(const Plane& plane, const std::vector<Eigen::Vector3f>&
     a.sum += p.cast<double>();
     ++a.n;
   }
-  (void)plane;
   for (std::size_t i = 0; i < pts_local.size(); ++i) {
     Eigen::Vector3f& n = normals_local[i];
     if (std::abs(n.z()) >= 0.5f) {
@@ -99,6 +98,15 @@ void orientWithoutSensor(const Plane& plane, const std::vector<Eigen::Vector3f>&
     Eigen::Vector2f d(p.x() - c.x(), p.y() - c.y());
     if (n.head<2>().dot(d) < 0) n = -n;
   }
+}
+
+/// Adds what one plane volume's integration did to the call's stats.
+void addResult(IntegrateStats& stats, int plane_id, const IntegrationResult& r) {
+  if (!r.updated_blocks.empty()) stats.updated_planes.push_back(plane_id);
+  if (r.changed()) stats.changed_planes.push_back(plane_id);
+  stats.blocks_updated += r.updated_blocks.size();
+  stats.blocks_allocated += r.allocated_blocks.size();
+  stats.points_fused += r.num_points_fused;
 }
 
 }  // namespace
@@ -154,17 +162,12 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   }
 }
 
-IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
-                              const std::vector<Eigen::Vector3f>& /*points_world*/) {
+IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world) {
   IntegrateStats stats;
   for (auto& ps : planes_) {
     const Pose T_local_camera = ps.plane.frame().inverse() * camera_to_world;
     const IntegrationResult r = integrateDepth(ps.volume, frame, T_local_camera, cfg_);
-    if (!r.updated_blocks.empty()) stats.updated_planes.push_back(ps.plane.id);
-    if (r.changed()) stats.changed_planes.push_back(ps.plane.id);
-    stats.blocks_updated += r.updated_blocks.size();
-    stats.blocks_allocated += r.allocated_blocks.size();
-    stats.points_fused += r.num_points_fused;
+    addResult(stats, ps.plane.id, r);
   }
   return stats;
 }
@@ -176,7 +179,7 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   tracker_.integrate(pts, camera_to_world.translation());
   IntegrateStats created;
   syncPlanes(created);
-  IntegrateStats stats = fuseDepth(frame, camera_to_world, pts);
+  IntegrateStats stats = fuseDepth(frame, camera_to_world);
   stats.new_planes = std::move(created.new_planes);
   keepPoints(pts, true);
   ++frames_;
@@ -223,7 +226,7 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   if (cloud.isOrganized()) {
     const Intrinsics k = estimateIntrinsics(cloud);
     const DepthFrame depth = depthFromOrganizedCloud(cloud, k);
-    stats = fuseDepth(depth, world.sensor_pose, world.points);
+    stats = fuseDepth(depth, world.sensor_pose);
   } else {
     // No pixel grid: splat each point along its PCA normal.
     const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);
@@ -241,13 +244,9 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
         n_local.push_back(R * normals[i]);
       }
       if (p_local.empty()) continue;
-      if (!has_sensor) orientWithoutSensor(ps.plane, p_local, n_local);
+      if (!has_sensor) orientWithoutSensor(p_local, n_local);
       const IntegrationResult r = integratePointsWithNormals(ps.volume, p_local, n_local, cfg_);
-      if (!r.updated_blocks.empty()) stats.updated_planes.push_back(ps.plane.id);
-      if (r.changed()) stats.changed_planes.push_back(ps.plane.id);
-      stats.blocks_updated += r.updated_blocks.size();
-      stats.blocks_allocated += r.allocated_blocks.size();
-      stats.points_fused += r.num_points_fused;
+      addResult(stats, ps.plane.id, r);
     }
   }
   stats.new_planes = std::move(created.new_planes);
