@@ -2,7 +2,9 @@
 // The subcommands of the planesdf CLI, one file each (cmd_<name>.cpp). main.cpp parses the
 // arguments into these structs and maps planesdf::Error to exit code 1.
 
+#include <functional>
 #include <string>
+#include <vector>
 
 #include "planesdf/config.hpp"
 
@@ -15,11 +17,19 @@ constexpr int kExitUsage = 2;  ///< usage errors and subcommands that are not im
 /// Parameters shared by every subcommand that builds maps (DESIGN §2), as given on the line.
 struct PipelineArgs {
   Config cfg;
-  std::string up = "0,0,1";  ///< "auto" or "X,Y,Z"
-  std::string intrinsics;    ///< "fx,fy,cx,cy[,width,height]" for TUM folders
+  /// "auto", "X,Y,Z", or empty: +z, except for an organised cloud given in its own camera
+  /// frame (identity VIEWPOINT), where gravity cannot be +z (the optical axis) and auto is used.
+  std::string up;
+  std::string intrinsics;   ///< "fx,fy,cx,cy[,width,height]" for TUM folders
+  std::string config_file;  ///< --config FILE: JSON parameters under the explicit flags
+  /// Copies the value of each flag given on the command line from one Config to another (so a
+  /// --config file can sit underneath the explicit flags).
+  std::vector<std::function<void(Config& dst, const Config& src)>> given;
 };
 
-/// Applies --up to args.cfg (throws planesdf::Error("--up", ...) on a malformed value).
+/// The Config of a run: --config file (or the defaults), then the flags given explicitly, then
+/// --up. Throws planesdf::Error("--up", ...) on a malformed up axis, and names the file or
+/// "command line" on an invalid parameter.
 Config resolveConfig(const PipelineArgs& args);
 
 struct EvalArgs {
@@ -40,5 +50,14 @@ struct FuseArgs {
 int runFuse(const FuseArgs& args);
 
 int runInfo(const std::string& input);
+
+struct DetectArgs {
+  std::string reference;
+  std::string current;
+  std::string out;
+  bool verbose = false;  ///< per plane pair: blobs and their 3D validation on stderr
+  PipelineArgs pipeline;
+};
+int runDetect(const DetectArgs& args);
 
 }  // namespace planesdf::cli

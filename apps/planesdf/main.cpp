@@ -14,24 +14,31 @@
 
 namespace {
 using namespace planesdf::cli;
+using planesdf::Config;
+
+/// A Config flag: bound to o.cfg.*member, and remembered so a --config file can sit under it.
+template <class T>
+void addParam(CLI::App* app, PipelineArgs& o, const std::string& flag, T Config::*member,
+              const std::string& help) {
+  CLI::Option* opt = app->add_option(flag, o.cfg.*member, help)->capture_default_str();
+  o.given.push_back([opt, member](Config& dst, const Config& src) {
+    if (opt->count() > 0) dst.*member = src.*member;
+  });
+}
 
 void addPipelineOptions(CLI::App* app, PipelineArgs& o) {
-  app->add_option("--up", o.up, "Up axis: auto or X,Y,Z")->capture_default_str();
-  app->add_option("--voxel", o.cfg.voxel_size, "Voxel size (m)")->capture_default_str();
-  app->add_option("--band", o.cfg.fuse_band, "Fusion band above each plane (m)")
-      ->capture_default_str();
-  app->add_option("--delta-h", o.cfg.delta_h, "Height change threshold δh (m)")
-      ->capture_default_str();
-  app->add_option("--delta-n", o.cfg.delta_n, "Registration normal cosine δn")
-      ->capture_default_str();
-  app->add_option("--delta-d", o.cfg.delta_d, "Registration offset gap δd (m)")
-      ->capture_default_str();
-  app->add_option("--alpha", o.cfg.alpha, "Similarity scale α")->capture_default_str();
-  app->add_option("--delta-blob", o.cfg.delta_blob, "Blob similarity threshold δ_blob")
-      ->capture_default_str();
-  app->add_option("--h-obj", o.cfg.h_obj, "Object height threshold (m)")->capture_default_str();
-  app->add_option("--threads", o.cfg.threads, "Fusion threads (0 = all cores)")
-      ->capture_default_str();
+  app->add_option("--up", o.up,
+                  "Up axis: auto or X,Y,Z (default 0,0,1; auto for an organised cloud in its "
+                  "camera frame)");
+  addParam(app, o, "--voxel", &Config::voxel_size, "Voxel size (m)");
+  addParam(app, o, "--band", &Config::fuse_band, "Fusion band above each plane (m)");
+  addParam(app, o, "--delta-h", &Config::delta_h, "Height change threshold δh (m)");
+  addParam(app, o, "--delta-n", &Config::delta_n, "Registration normal cosine δn");
+  addParam(app, o, "--delta-d", &Config::delta_d, "Registration offset gap δd (m)");
+  addParam(app, o, "--alpha", &Config::alpha, "Similarity scale α");
+  addParam(app, o, "--delta-blob", &Config::delta_blob, "Blob similarity threshold δ_blob");
+  addParam(app, o, "--h-obj", &Config::h_obj, "Object height threshold (m)");
+  addParam(app, o, "--threads", &Config::threads, "Threads (0 = all cores)");
   app->add_option("--intrinsics", o.intrinsics,
                   "fx,fy,cx,cy[,width,height] for TUM folders without intrinsics.txt");
 }
@@ -79,14 +86,16 @@ int main(int argc, char** argv) {
   addPipelineOptions(fuse, fuse_args.pipeline);
 
   // detect
-  std::string det_ref, det_cur, det_out, det_config;
-  PipelineArgs det_opts;
+  DetectArgs det_args;
   auto* detect = app.add_subcommand("detect", "Detect changes between two sessions");
-  detect->add_option("REFERENCE", det_ref, "Reference session (old)")->required();
-  detect->add_option("CURRENT", det_cur, "Current session (new)")->required();
-  detect->add_option("--out", det_out, "Output folder")->required();
-  detect->add_option("--config", det_config, "JSON file with Config parameters");
-  addPipelineOptions(detect, det_opts);
+  detect->add_option("REFERENCE", det_args.reference, "Reference session (old)")->required();
+  detect->add_option("CURRENT", det_args.current, "Current session (new)")->required();
+  detect->add_option("--out", det_args.out, "Output folder")->required();
+  detect->add_option("--config", det_args.pipeline.config_file,
+                     "JSON file with Config parameters (explicit flags override it)");
+  detect->add_flag("-v,--verbose", det_args.verbose,
+                   "Per plane pair: registration, blobs and their 3D validation on stderr");
+  addPipelineOptions(detect, det_args.pipeline);
 
   // eval
   EvalArgs eval_args;
@@ -123,7 +132,7 @@ int main(int argc, char** argv) {
     if (*eval) return runEval(eval_args);
     if (*demo) return notImplemented("demo", "the simulator is issue 5");
     if (*simulate) return notImplemented("simulate", "issue 5");
-    if (*detect) return notImplemented("detect", "issue 4");
+    if (*detect) return runDetect(det_args);
     if (*bench) return notImplemented("bench", "issue 7");
   } catch (const std::exception& e) {  // planesdf::Error and anything else: one line, exit 1
     std::cerr << "planesdf: error: " << e.what() << "\n";

@@ -8,8 +8,15 @@
 namespace planesdf::cli {
 
 Config resolveConfig(const PipelineArgs& args) {
-  Config cfg = args.cfg;
-  if (args.up == "auto") {
+  Config cfg = args.config_file.empty() ? args.cfg : loadConfigJson(args.config_file);
+  if (!args.config_file.empty())
+    for (const auto& copy : args.given) copy(cfg, args.cfg);
+  if (args.up.empty()) {
+    if (args.config_file.empty()) {
+      cfg.up = Eigen::Vector3d::UnitZ();
+      cfg.up_auto = false;
+    }
+  } else if (args.up == "auto") {
     cfg.up_auto = true;
   } else {
     std::istringstream in(args.up);

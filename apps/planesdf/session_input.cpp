@@ -84,14 +84,23 @@ Map fuseTum(const std::string& folder, const Config& cfg, const std::string& int
 }  // namespace
 
 Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
-                const std::string& label) {
+                const std::string& label, bool up_defaulted) {
   if (fs::is_directory(input)) {
     if (!io::isTumFolder(input))
       throw Error(input, "not a TUM RGB-D sequence (no depth.txt) and not a cloud or map file");
     return fuseTum(input, cfg, intrinsics, label);
   }
   if (lowerExtension(input) == ".psdf") return Map::load(input);
-  return Map::fromCloud(io::readSceneCloud(input), cfg);
+  const PointCloud cloud = io::readSceneCloud(input);
+  if (up_defaulted && !cfg.up_auto && cloud.isOrganized() &&
+      cloud.sensor_pose.isApprox(Pose::Identity())) {
+    Config auto_cfg = cfg;
+    auto_cfg.up_auto = true;
+    std::cerr << label << ": " << input
+              << " is an organised cloud in its camera frame: up axis estimated (--up auto)\n";
+    return Map::fromCloud(cloud, auto_cfg);
+  }
+  return Map::fromCloud(cloud, cfg);
 }
 
 }  // namespace planesdf::cli

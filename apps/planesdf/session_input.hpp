@@ -12,7 +12,9 @@ Intrinsics parseIntrinsics(const std::string& text);
 
 /// The map of one session input. TUM folders are fused frame by frame with progress on stderr
 /// (prefixed by `label`); clouds go through Map::fromCloud; .psdf maps are loaded as saved.
+/// When `up_defaulted` (no --up given) and the input is an organised cloud in its own camera
+/// frame (identity sensor pose), the up axis is estimated (auto) and a note goes to stderr.
 Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
-                const std::string& label);
+                const std::string& label, bool up_defaulted = false);
 
 }  // namespace planesdf::cli

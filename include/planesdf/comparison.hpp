@@ -17,6 +17,7 @@
 
 #include "planesdf/config.hpp"
 #include "planesdf/height_map.hpp"
+#include "planesdf/tsdf.hpp"
 #include "planesdf/types.hpp"
 
 namespace planesdf {
@@ -61,17 +62,30 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
 /// Every stage of the 2D change detection of one registered plane pair, so callers can save a
 /// picture per stage.
 struct HeightChange {
-  Mask2D raw;               ///< compareHeightMaps
-  Mask2D unknown;           ///< cells that could not be compared
+  Mask2D raw;               ///< compareHeightMaps, plus `vacated` when a target volume is given
+  Mask2D unknown;           ///< cells eq. 2 could not compare
+  Mask2D vacated;           ///< freeSpaceEvidence (empty without a target volume)
   Mask2D filtered;          ///< raw without components smaller than cfg.min_change_cells
   Mask2D cleaned;           ///< filtered, dilated by cfg.dilation_cells (= cleanChangeMask(raw))
   Mask2D blob_mask;         ///< union of the blobs' cells
   std::vector<Blob> blobs;  ///< changedBlobs(cleaned, src_objects)
 };
 
-/// compareHeightMaps, cleanChangeMask and changedBlobs in a row.
+/// compareHeightMaps, cleanChangeMask and changedBlobs in a row. With `target_volume`, the
+/// cells of freeSpaceEvidence join the raw mask before cleaning.
 HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
                                 const ObjectMap& src_objects, const Pose& T_target_source_local,
-                                const Config& cfg);
+                                const Config& cfg, const TsdfVolume* target_volume = nullptr);
+
+/// Free-space evidence, beyond eq. 2 (which needs the target's height map, and a single view
+/// leaves the places behind objects unobserved there): an `unknown` source cell higher than
+/// h_obj is changed ("vacated") when the target TSDF saw free space where the source object was.
+/// The three points 1, 2 and 3 voxels below the source surface of the cell (inside the source
+/// object) are mapped by T into the target volume; the cell is vacated when at least two of
+/// them fall in observed target voxels (weight >= w_min) with sdf >= min(δh, truncation) / 2 and
+/// none in an observed voxel with sdf <= 0. Unobserved target voxels give no evidence.
+Mask2D freeSpaceEvidence(const HeightMap& src, const Mask2D& unknown,
+                         const TsdfVolume& target_volume, const Pose& T_target_source_local,
+                         const Config& cfg);
 
 }  // namespace planesdf

@@ -201,4 +201,11 @@ void writeHeightMapPng(const std::string& path, const HeightMap& hm, float max_h
 /// (height * s + kPictureCaptionHeight).
 void writeObjectMapPng(const std::string& path, const ObjectMap& om);
 
+/// PNG of a mask: on-cells red over `background` (when given with the same geometry: grey
+/// levels growing with the height, black unobserved; else black), with `title` and the number of
+/// on-cells in a line under the map. Picture size: max(width * s, kPictureMinWidth) x
+/// (height * s + kPictureCaptionHeight + 20).
+void writeMaskPng(const std::string& path, const Mask2D& mask, const HeightMap* background,
+                  const std::string& title);
+
 }  // namespace planesdf

@@ -99,12 +99,15 @@ struct InPlaneRefinement {
 };
 
 /// Refines the in-plane part of `T_target_source_local` so that cells observed in both height
-/// maps agree best. Exhaustive search over a yaw (about the centre of the source grid mapped by
-/// T) and a shift (du, dv) on the grid of `search`; the cost of a candidate is the fraction of
-/// compared source cells whose nearest target cell differs by more than cfg.delta_h, ties broken
-/// by the mean capped absolute difference, then by the smaller motion. Candidates comparing fewer
-/// than half the initial cells (or fewer than search.min_compared) are skipped. T becomes
-/// Δ * T only when the cost strictly improves. Empty or non-overlapping maps: nothing is done.
+/// maps agree best. The samples are the source cells (evenly subsampled) whose nearest target
+/// cell under the initial T is observed; exhaustive search over a yaw (about the centre of the
+/// samples) and a shift (du, dv) on the grid of `search`. The cost of a candidate is the number
+/// of samples whose nearest target cell differs by more than cfg.delta_h — a sample moved off the
+/// observed target counts as a mismatch, so differences cannot hide in unobserved areas — ties
+/// broken by the mean capped absolute difference, then by the smaller motion. Model selection:
+/// T becomes Δ * T only when the best candidate removes at least 20 % of the initial mismatches
+/// and at least 20 cells (changed objects mismatch wherever they are put; drift makes a shift pay
+/// off everywhere along the static edges). Empty or non-overlapping maps: nothing is done.
 /// Does not read cfg.refine_inplane (the caller decides whether to refine).
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,

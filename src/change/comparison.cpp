@@ -164,11 +164,44 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
   return blobs;
 }
 
+Mask2D freeSpaceEvidence(const HeightMap& src, const Mask2D& unknown,
+                         const TsdfVolume& target_volume, const Pose& T_target_source_local,
+                         const Config& cfg) {
+  Mask2D out = Mask2D::zeros(src.geometry());
+  if (src.empty() || !unknown.sameGeometry(src)) return out;
+  const double vs = src.cell_size;
+  const float free_sdf =
+      static_cast<float>(0.5 * std::min(cfg.delta_h, target_volume.truncation()));
+  for (int y = 0; y < src.height; ++y)
+    for (int x = 0; x < src.width; ++x) {
+      if (!unknown.at(x, y)) continue;
+      const float h = src.at(x, y);
+      if (!(h > cfg.h_obj)) continue;
+      const Eigen::Vector2d uv = src.cellCenter(x, y);
+      int free = 0, occupied = 0;
+      for (int m = 1; m <= 3; ++m) {
+        const Eigen::Vector3d p =
+            T_target_source_local * Eigen::Vector3d(uv.x(), uv.y(), h - m * vs);
+        const TsdfVoxel* v = target_volume.voxel(target_volume.voxelIndexAt(p));
+        if (v == nullptr || !(v->weight > 0.0f && v->weight >= cfg.w_min)) continue;
+        if (v->sdf >= free_sdf) ++free;
+        if (v->sdf <= 0.0f) ++occupied;
+      }
+      if (free >= 2 && occupied == 0) out.set(x, y);
+    }
+  return out;
+}
+
 HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
                                 const ObjectMap& src_objects, const Pose& T_target_source_local,
-                                const Config& cfg) {
+                                const Config& cfg, const TsdfVolume* target_volume) {
   HeightChange out;
   out.raw = compareHeightMaps(src, tgt, T_target_source_local, cfg, &out.unknown);
+  if (target_volume != nullptr) {
+    out.vacated = freeSpaceEvidence(src, out.unknown, *target_volume, T_target_source_local, cfg);
+    for (std::size_t i = 0; i < out.raw.cells.size(); ++i)
+      if (out.vacated.cells[i]) out.raw.cells[i] = 1;
+  }
   out.cleaned = cleanChangeMask(out.raw, cfg);  // validates the cleaning parameters
   out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
   out.blobs = changedBlobs(out.cleaned, src_objects);

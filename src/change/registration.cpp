@@ -124,6 +124,10 @@ std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, con
 
 namespace {
 
+/// Smallest improvement refineInPlane accepts (see there).
+constexpr int kMinGainCells = 20;
+constexpr double kMinGainFraction = 0.2;
+
 struct Sample {
   Eigen::Vector2d uv;  ///< source cell centre mapped by the initial T, target-local
   float h;             ///< source height
@@ -151,9 +155,17 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
     const double v = pivot.y() + s * d.x() + c * d.y() + shift.y();
     const double fx = std::floor(u * inv) - tgt.i0;
     const double fy = std::floor(v * inv) - tgt.j0;
-    if (!(fx >= 0.0 && fy >= 0.0 && fx < tgt.width && fy < tgt.height)) continue;
-    const float ht = tgt.at(static_cast<int>(fx), static_cast<int>(fy));
-    if (ht == kUnobserved) continue;
+    const bool inside = fx >= 0.0 && fy >= 0.0 && fx < tgt.width && fy < tgt.height;
+    const float ht = inside ? tgt.at(static_cast<int>(fx), static_cast<int>(fy)) : kUnobserved;
+    if (ht == kUnobserved) {
+      // The samples are the cells compared at the initial T: one that a candidate moves off
+      // the observed target counts as a mismatch, so no candidate wins by hiding differences in
+      // unobserved areas (the shadows beside objects in single views).
+      ++sc.compared;
+      ++sc.mismatches;
+      sum += cap;
+      continue;
+    }
     const double diff = std::abs(static_cast<double>(ht) - static_cast<double>(smp.h));
     ++sc.compared;
     if (diff > delta_h) ++sc.mismatches;
@@ -163,12 +175,9 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
   return sc;
 }
 
-/// True when `a` is a strictly better cost than `b` (mismatch fraction, then mean |diff|).
+/// True when `a` is a strictly better cost than `b` (mismatches, then mean |diff|).
 bool better(const Score& a, const Score& b) {
-  const double fa = static_cast<double>(a.mismatches) / a.compared;
-  const double fb = static_cast<double>(b.mismatches) / b.compared;
-  if (fa < fb - 1e-12) return true;
-  if (fa > fb + 1e-12) return false;
+  if (a.mismatches != b.mismatches) return a.mismatches < b.mismatches;
   return a.mean_abs < b.mean_abs - 1e-9;
 }
 
@@ -202,6 +211,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
       if (k++ % stride != 0) continue;
       const Eigen::Vector2d c = src.cellCenter(x, y);
       const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
+      const Eigen::Vector2i tc = tgt.cellOf(uv);
+      if (!tgt.inBounds(tc.x(), tc.y()) || !tgt.observed(tc.x(), tc.y())) continue;
       samples.push_back({uv, h});
       lo = lo.cwiseMin(uv);
       hi = hi.cwiseMax(uv);
@@ -215,7 +226,6 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   out.compared_before = out.compared_after = initial.compared;
   out.mismatches_before = out.mismatches_after = initial.mismatches;
   out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
-  const int min_compared = std::max(search.min_compared, (initial.compared + 1) / 2);
   if (initial.compared < std::max(1, search.min_compared)) return out;
 
   const double step = search.shift_step > 0.0 ? search.shift_step : tgt.cell_size;
@@ -247,13 +257,17 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
     const double yaw = cd.iy * ystep * kPi / 180.0;
     const Score sc = scoreCandidate(samples, tgt, pivot, yaw,
                                     Eigen::Vector2d(cd.iu * step, cd.iv * step), cfg.delta_h);
-    if (sc.compared < min_compared) continue;
     if (better(sc, best)) {
       best = sc;
       best_cand = &cd;
     }
   }
   if (best_cand == nullptr) return out;
+  // Model selection: keep the initial T unless the evidence is clear — the best candidate must
+  // remove at least kMinGainFraction of the initial mismatches and kMinGainCells cells (changed
+  // objects mismatch wherever they are put; only drift makes a shift pay off substantially).
+  const int gain = initial.mismatches - best.mismatches;
+  if (gain < kMinGainCells || gain < kMinGainFraction * initial.mismatches) return out;
 
   out.applied = true;
   out.du = best_cand->iu * step;

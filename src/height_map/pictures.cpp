@@ -240,4 +240,34 @@ void writeObjectMapPng(const std::string& path, const ObjectMap& om) {
   writePng(path, img);
 }
 
+void writeMaskPng(const std::string& path, const Mask2D& mask, const HeightMap* background,
+                  const std::string& title) {
+  if (mask.empty() || mask.cells.size() != mask.numCells()) {
+    if (!mask.empty()) throw Error(path, "mask has the wrong number of cells");
+    writePng(path, emptyPicture("mask"));
+    return;
+  }
+  const bool with_bg = background != nullptr && background->sameGeometry(mask) &&
+                       background->heights.size() == background->numCells();
+  const int s = picturePixelsPerCell(mask);
+  const int map_w = mask.width * s, map_h = mask.height * s;
+  cv::Mat img(map_h + kPictureCaptionHeight + 20, std::max(map_w, kPictureMinWidth), CV_8UC3,
+              kBlack);
+  paintCells(img, mask, s, [&](int x, int y) {
+    if (mask.at(x, y)) return cv::Vec3b(40, 40, 255);  // red (BGR)
+    if (!with_bg) return cv::Vec3b(0, 0, 0);
+    const float h = background->at(x, y);
+    if (h == kUnobserved || h < 0.0f) return cv::Vec3b(0, 0, 0);
+    const double t = std::clamp(static_cast<double>(h) / 0.3, 0.0, 1.0);
+    const auto g = static_cast<std::uint8_t>(std::lround(70.0 + 150.0 * t));
+    return cv::Vec3b(g, g, g);
+  });
+  cv::line(img, cv::Point(0, map_h), cv::Point(img.cols - 1, map_h), cv::Scalar(128, 128, 128));
+  putLabel(img, title + ": " + std::to_string(mask.count()) + " cells in red",
+           cv::Point(6, map_h + 16), kWhite);
+  cv::Mat body = img(cv::Rect(0, 20, img.cols, img.rows - 20));
+  drawCaption(body, mask, s, with_bg ? ", grey: height (black unobserved)" : "", kWhite);
+  writePng(path, img);
+}
+
 }  // namespace planesdf

@@ -1,0 +1,630 @@
+// Change detection between two maps: per registered plane pair, eq. 2 comparison, blobs, 3D
+// validation, then typed events (see change.hpp).
+
+#include "planesdf/change.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <set>
+#include <tuple>
+#include <utility>
+
+#include "planesdf/error.hpp"
+
+namespace planesdf {
+
+const char* toString(ChangeType t) {
+  switch (t) {
+    case ChangeType::Added:
+      return "added";
+    case ChangeType::Removed:
+      return "removed";
+    case ChangeType::Moved:
+      return "moved";
+    case ChangeType::Replaced:
+      return "replaced";
+  }
+  return "unknown";
+}
+
+const char* toString(ChangeStatus s) {
+  switch (s) {
+    case ChangeStatus::New:
+      return "new";
+    case ChangeStatus::Updated:
+      return "updated";
+    case ChangeStatus::Retracted:
+      return "retracted";
+  }
+  return "unknown";
+}
+
+const ChangeRegion& ChangeEvent::primary() const {
+  return type == ChangeType::Removed || current.empty() ? reference : current;
+}
+
+namespace {
+
+/// Planes with |n·n'| below this are not parallel (see computePlaneMaps).
+constexpr double kParallelPlaneCos = 0.7;
+/// A height-map surface within this distance (m) of another plane, inside its extent grown by
+/// kOtherPlaneMargin (m), lies on that plane.
+constexpr double kOtherPlaneDistance = 0.02;
+constexpr double kOtherPlaneMargin = 0.03;
+
+using ColumnKey = std::pair<int, int>;
+
+ColumnKey key(const Eigen::Vector2i& c) {
+  return {c.x(), c.y()};
+}
+
+double relDiff(double a, double b, double floor_value) {
+  const double m = std::max({std::abs(a), std::abs(b), floor_value});
+  return std::abs(a - b) / m;
+}
+
+/// Signature of a set of cells of a height map (heights > 0 count toward the volume).
+ShapeSignature signatureOf(const HeightMap& hm, const std::vector<Eigen::Vector2i>& cells) {
+  ShapeSignature s;
+  s.cells = static_cast<int>(cells.size());
+  if (cells.empty()) return s;
+  const double a = hm.cell_size * hm.cell_size;
+  std::vector<double> heights;
+  heights.reserve(cells.size());
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const auto& c : cells) {
+    const double h = std::max(0.0, static_cast<double>(hm.at(c.x(), c.y())));
+    heights.push_back(h);
+    s.volume += a * h;
+    mean += hm.cellCenter(c.x(), c.y());
+  }
+  mean /= static_cast<double>(cells.size());
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  for (const auto& c : cells) {
+    const Eigen::Vector2d d = hm.cellCenter(c.x(), c.y()) - mean;
+    cov += d * d.transpose();
+  }
+  cov /= static_cast<double>(cells.size());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(cov);
+  s.minor = std::sqrt(std::max(0.0, es.eigenvalues()(0)));
+  s.major = std::sqrt(std::max(0.0, es.eigenvalues()(1)));
+  s.area = a * static_cast<double>(cells.size());
+  std::sort(heights.begin(), heights.end());
+  s.max_height = heights.back();
+  for (int q = 1; q <= 10; ++q) {
+    const auto i = std::min(heights.size() - 1,
+                            static_cast<std::size_t>(std::ceil(q / 10.0 * heights.size())) - 1);
+    s.deciles.push_back(heights[i]);
+  }
+  return s;
+}
+
+void finishRegion(ChangeRegion& r, const TsdfVolume& vol, const Plane& plane) {
+  r.bbox.setEmpty();
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const auto& v : r.voxels) {
+    const Eigen::Vector3d w = plane.toWorld(vol.voxelCenter(v));
+    r.bbox.extend(w);
+    sum += w;
+  }
+  if (!r.voxels.empty()) r.centroid = sum / static_cast<double>(r.voxels.size());
+}
+
+/// Observed voxels of column (i, j) with centre height in [lo, hi].
+void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, float w_min,
+                  std::vector<Eigen::Vector3i>& out) {
+  const double vs = vol.voxelSize();
+  const int k0 = static_cast<int>(std::ceil(lo / vs - 0.5));
+  const int k1 = static_cast<int>(std::floor(hi / vs - 0.5));
+  for (int k = k0; k <= k1; ++k) {
+    const Eigen::Vector3i v(i, j, k);
+    const TsdfVoxel* vox = vol.voxel(v);
+    if (vox != nullptr && vox->weight > 0.0f && vox->weight >= w_min) out.push_back(v);
+  }
+}
+
+/// Target height at the source cell centre mapped by T (nearest target cell); kUnobserved when
+/// outside or unobserved. `cell` receives the target cell.
+float targetHeight(const HeightMap& tgt, const Pose& T, const Eigen::Vector2d& uv, double h,
+                   Eigen::Vector2i* cell) {
+  const Eigen::Vector3d p = T * Eigen::Vector3d(uv.x(), uv.y(), h);
+  const Eigen::Vector2i c = tgt.cellOf(p.head<2>());
+  if (cell != nullptr) *cell = c;
+  if (!tgt.inBounds(c.x(), c.y())) return kUnobserved;
+  return tgt.at(c.x(), c.y());
+}
+
+/// The voxels of `vol` in [lo, hi] (global indices) as a new volume, where an unobserved voxel
+/// above the surface of an observed height-map column gets its vertical distance to that surface
+/// (capped at the truncation) with weight w_min: fusion allocates blocks only around surfaces and
+/// a single view leaves voxels near silhouettes unobserved, but the height map knows the space
+/// above an observed surface is empty (its 2.5D premise), and the 3D validation needs that free
+/// space to tell "gone" from "unobserved".
+TsdfVolume completedRegion(const TsdfVolume& vol, const HeightMap& hm, const Eigen::Vector3i& lo,
+                           const Eigen::Vector3i& hi, float w_min) {
+  TsdfVolume out(vol.voxelSize(), vol.truncation());
+  const double vs = vol.voxelSize();
+  const double trunc = vol.truncation();
+  const float w_fill = std::max(w_min, 1.0f);
+  for (int i = lo.x(); i <= hi.x(); ++i)
+    for (int j = lo.y(); j <= hi.y(); ++j) {
+      const int x = i - hm.i0, y = j - hm.j0;
+      const bool col_known = hm.inBounds(x, y) && hm.observed(x, y);
+      const double surface = col_known ? static_cast<double>(hm.at(x, y)) : 0.0;
+      for (int k = lo.z(); k <= hi.z(); ++k) {
+        const Eigen::Vector3i v(i, j, k);
+        const TsdfVoxel* src = vol.voxel(v);
+        TsdfVoxel val = src != nullptr ? *src : TsdfVoxel{};
+        if (!(val.weight > 0.0f && val.weight >= w_min)) {
+          const double above = (k + 0.5) * vs - surface;
+          if (col_known && above > 0.0) {
+            val = TsdfVoxel{static_cast<float>(std::min(above, trunc)), w_fill};
+          } else if (val.weight <= 0.0f) {
+            continue;
+          }
+        }
+        TsdfBlock& b = out.allocateBlock(TsdfVolume::blockOfVoxel(v));
+        b.voxels[static_cast<std::size_t>(TsdfVolume::linearIndexInBlock(v))] = val;
+      }
+    }
+  return out;
+}
+
+/// Voxel bounding box of `voxels` grown by `margin`.
+std::pair<Eigen::Vector3i, Eigen::Vector3i> voxelBox(const std::vector<Eigen::Vector3i>& voxels,
+                                                     int margin) {
+  Eigen::Vector3i lo = voxels.front(), hi = voxels.front();
+  for (const auto& v : voxels) {
+    lo = lo.cwiseMin(v);
+    hi = hi.cwiseMax(v);
+  }
+  return {lo.array() - margin, hi.array() + margin};
+}
+
+/// The target voxel box covering the source box [lo, hi] mapped by T, grown by `margin`.
+std::pair<Eigen::Vector3i, Eigen::Vector3i> mappedBox(const Eigen::Vector3i& lo,
+                                                      const Eigen::Vector3i& hi, const Pose& T,
+                                                      double vs, int margin) {
+  Eigen::Vector3d mn = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d mx = -mn;
+  for (int c = 0; c < 8; ++c) {
+    const Eigen::Vector3d corner(((c & 1) ? hi.x() + 1 : lo.x()) * vs,
+                                 ((c & 2) ? hi.y() + 1 : lo.y()) * vs,
+                                 ((c & 4) ? hi.z() + 1 : lo.z()) * vs);
+    const Eigen::Vector3d q = T * corner;
+    mn = mn.cwiseMin(q);
+    mx = mx.cwiseMax(q);
+  }
+  const Eigen::Vector3i a((mn / vs).array().floor().cast<int>() - margin);
+  const Eigen::Vector3i b((mx / vs).array().floor().cast<int>() + margin);
+  return {a, b};
+}
+
+double confidenceOf(const ChangeRegion& r, const Config& cfg) {
+  if (r.empty()) return 0.0;
+  if (r.verdict == BlobValidation::Verdict::Changed && cfg.delta_blob > 0.0)
+    return std::clamp(0.5 + 0.5 * (cfg.delta_blob - r.mean_similarity) / cfg.delta_blob, 0.5, 1.0);
+  return 0.5;
+}
+
+void appendRegion(ChangeRegion& into, const ChangeRegion& from) {
+  if (into.empty()) {
+    into = from;
+    return;
+  }
+  into.columns.insert(into.columns.end(), from.columns.begin(), from.columns.end());
+  into.voxels.insert(into.voxels.end(), from.voxels.begin(), from.voxels.end());
+  into.points.insert(into.points.end(), from.points.begin(), from.points.end());
+  const double n1 = static_cast<double>(into.voxels.size() - from.voxels.size());
+  const double n2 = static_cast<double>(from.voxels.size());
+  if (n1 + n2 > 0) into.centroid = (into.centroid * n1 + from.centroid * n2) / (n1 + n2);
+  into.bbox.extend(from.bbox);
+  const int scored = into.scored + from.scored;
+  if (scored > 0)
+    into.mean_similarity =
+        (into.mean_similarity * into.scored + from.mean_similarity * from.scored) / scored;
+  into.scored = scored;
+  into.key_voxels += from.key_voxels;
+  if (from.verdict == BlobValidation::Verdict::Changed) into.verdict = from.verdict;
+  into.shape.cells += from.shape.cells;
+  into.shape.area += from.shape.area;
+  into.shape.volume += from.shape.volume;
+  into.shape.max_height = std::max(into.shape.max_height, from.shape.max_height);
+}
+
+}  // namespace
+
+double shapeDistance(const ShapeSignature& a, const ShapeSignature& b) {
+  if (a.cells == 0 || b.cells == 0) return std::numeric_limits<double>::infinity();
+  const double cell = 0.007;  // floors keep tiny objects from dividing by ~0
+  double d = relDiff(a.max_height, b.max_height, 0.02);
+  d = std::max(d, relDiff(a.area, b.area, 4 * cell * cell));
+  d = std::max(d, relDiff(a.volume, b.volume, 1e-6));
+  d = std::max(d, relDiff(a.major, b.major, 2 * cell));
+  d = std::max(d, relDiff(a.minor, b.minor, 2 * cell));
+  const double hmax = std::max({a.max_height, b.max_height, 0.02});
+  for (std::size_t i = 0; i < std::min(a.deciles.size(), b.deciles.size()); ++i)
+    d = std::max(d, std::abs(a.deciles[i] - b.deciles[i]) / hmax);
+  return d;
+}
+
+PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
+                           const Config& cfg) {
+  PlaneMaps m;
+  m.heights = computeHeightMap(plane.volume, cfg);
+  // Surfaces of the other, non-parallel planes of the map (a wall in the table's band, the
+  // table in a wall's band) are structure, not objects: unknown on this plane.
+  std::vector<const Plane*> others;
+  for (const PlaneSdf& q : map_planes)
+    if (q.plane.id != plane.plane.id &&
+        std::abs(q.plane.normal.dot(plane.plane.normal)) < kParallelPlaneCos &&
+        !q.plane.extent.isEmpty())
+      others.push_back(&q.plane);
+  HeightMap& hm = m.heights;
+  if (!others.empty())
+    for (int y = 0; y < hm.height; ++y)
+      for (int x = 0; x < hm.width; ++x) {
+        const float h = hm.at(x, y);
+        if (!(h > cfg.h_obj)) continue;
+        const Eigen::Vector2d uv = hm.cellCenter(x, y);
+        const Eigen::Vector3d p = plane.plane.toWorld(Eigen::Vector3d(uv.x(), uv.y(), h));
+        for (const Plane* q : others) {
+          if (std::abs(q->signedDistance(p)) > kOtherPlaneDistance) continue;
+          const Eigen::Vector3d l = q->toLocal(p);
+          const Eigen::AlignedBox2d ext(q->extent.min().array() - kOtherPlaneMargin,
+                                        q->extent.max().array() + kOtherPlaneMargin);
+          if (ext.contains(l.head<2>())) {
+            hm.at(x, y) = kUnobserved;
+            break;
+          }
+        }
+      }
+  m.objects = computeObjectMap(m.heights, cfg);
+  m.revision = plane.volume.revision();
+  return m;
+}
+
+std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMaps& src_maps,
+                                              const PlaneSdf& tgt, const PlaneMaps& tgt_maps,
+                                              const PlaneMatch& match, bool refine_inplane,
+                                              const std::vector<Eigen::Vector3f>& source_points,
+                                              const std::vector<Eigen::Vector3f>& target_points,
+                                              const Config& cfg, const DetectOptions& options,
+                                              PlanePairResult* result) {
+  PlanePairResult local;
+  PlanePairResult& r = result != nullptr ? *result : local;
+  r.match = match;
+  const HeightMap& hs = src_maps.heights;
+  const HeightMap& ht = tgt_maps.heights;
+  const ObjectMap& os = src_maps.objects;
+  const ObjectMap& ot = tgt_maps.objects;
+  if (refine_inplane) r.refinement = refineInPlane(hs, ht, r.match.T_target_source_local, cfg);
+  const Pose T = r.match.T_target_source_local;
+
+  r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume);
+  r.validations.clear();
+  r.validated = Mask2D::zeros(hs);
+  const double vs = src.volume.voxelSize();
+  const double trunc = src.volume.truncation();
+  const double lo_flat = 0.5 * cfg.h_obj;
+
+  std::vector<CandidateChange> out;
+  // Per cell: index of the candidate it belongs to and its height range.
+  std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
+  std::vector<float> cell_lo(cell_owner.size(), 0.0f), cell_hi(cell_owner.size(), 0.0f);
+
+  for (const Blob& blob : r.change.blobs) {
+    CandidateChange cand;
+    ChangeRegion& reg = cand.region;
+    reg.plane_id = src.plane.id;
+    cand.target_plane_id = tgt.plane.id;
+    std::vector<Eigen::Vector3i> voxels;
+    std::vector<std::pair<std::size_t, std::pair<float, float>>> ranges;
+    std::set<int> target_labels;
+    int on_target_objects = 0;
+    for (const Eigen::Vector2i& c : blob.cells) {
+      const float h_src = hs.at(c.x(), c.y());
+      const Eigen::Vector2d uv = hs.cellCenter(c.x(), c.y());
+      Eigen::Vector2i tc;
+      const float h_tgt = targetHeight(ht, T, uv, std::max(0.0f, h_src), &tc);
+      if (ht.inBounds(tc.x(), tc.y())) {
+        cand.target_columns.emplace_back(ht.i0 + tc.x(), ht.j0 + tc.y());
+        const int label = ot.at(tc.x(), tc.y());
+        if (label > 0) {
+          target_labels.insert(label);
+          ++on_target_objects;
+        }
+      }
+      reg.columns.emplace_back(hs.i0 + c.x(), hs.j0 + c.y());
+      if (!(h_src > cfg.h_obj)) continue;  // grown cell without an object height
+      const double lo = (h_tgt != kUnobserved && h_tgt > cfg.h_obj)
+                            ? static_cast<double>(h_tgt) + 0.5 * cfg.delta_h
+                            : lo_flat;
+      if (lo >= h_src) continue;  // the other map is as high here: this column did not change
+      const double hi = static_cast<double>(h_src) + trunc;
+      columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo - vs, hi, cfg.w_min, voxels);
+      ranges.push_back(
+          {hs.index(c.x(), c.y()), {static_cast<float>(lo), h_src + static_cast<float>(vs)}});
+    }
+    cand.target_object_overlap =
+        blob.cells.empty() ? 0.0 : static_cast<double>(on_target_objects) / blob.cells.size();
+
+    BlobValidation val;
+    if (!voxels.empty()) {
+      // Key voxels need 3 voxels of observed neighbourhood (Hessians of their 3x3x3
+      // neighbourhood, 5x5x5 Sobel each); one more for the local-extremum test.
+      constexpr int kMargin = 4;
+      const auto [slo, shi] = voxelBox(voxels, kMargin);
+      const auto [tlo, thi] = mappedBox(slo, shi, T, vs, kMargin);
+      const TsdfVolume sv = completedRegion(src.volume, hs, slo, shi, cfg.w_min);
+      const TsdfVolume tv = completedRegion(tgt.volume, ht, tlo, thi, cfg.w_min);
+      val = validateBlob(sv, tv, T, voxels, cfg, options.validation);
+    }
+    r.validations.push_back(val);
+    if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
+
+    for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
+    reg.voxels = std::move(voxels);
+    reg.key_voxels = val.key_voxels;
+    reg.scored = val.scored;
+    reg.mean_similarity = val.mean_similarity;
+    reg.verdict = val.verdict;
+    reg.shape = signatureOf(hs, blob.cells);
+    finishRegion(reg, src.volume, src.plane);
+    const int idx = static_cast<int>(out.size());
+    for (const auto& rg : ranges) {
+      cell_owner[rg.first] = idx;
+      cell_lo[rg.first] = rg.second.first;
+      cell_hi[rg.first] = rg.second.second;
+    }
+
+    if (!target_labels.empty()) {  // the target objects it lands on, as a region
+      ChangeRegion& to = cand.target_object;
+      to.plane_id = tgt.plane.id;
+      std::vector<Eigen::Vector2i> cells;
+      for (int y = 0; y < ot.height; ++y)
+        for (int x = 0; x < ot.width; ++x)
+          if (target_labels.count(ot.at(x, y)) != 0) cells.emplace_back(x, y);
+      for (const auto& c : cells) {
+        to.columns.emplace_back(ot.i0 + c.x(), ot.j0 + c.y());
+        const float h = ht.at(c.x(), c.y());
+        columnVoxels(tgt.volume, ot.i0 + c.x(), ot.j0 + c.y(), lo_flat - vs,
+                     static_cast<double>(h) + trunc, cfg.w_min, to.voxels);
+      }
+      to.shape = signatureOf(ht, cells);
+      finishRegion(to, tgt.volume, tgt.plane);
+      for (const auto& p : target_points) {
+        const Eigen::Vector3d l = tgt.plane.toLocal(p.cast<double>());
+        const Eigen::Vector2i c = ot.cellOf(l.head<2>());
+        if (!ot.inBounds(c.x(), c.y()) || target_labels.count(ot.at(c.x(), c.y())) == 0) continue;
+        if (l.z() >= lo_flat && l.z() <= ht.at(c.x(), c.y()) + vs) to.points.push_back(p);
+      }
+    }
+    out.push_back(std::move(cand));
+  }
+
+  if (!out.empty()) {
+    // Points: DESIGN's "input points that fused into" the blob's voxels. A point updates the
+    // voxels within the truncation of its surface, so the points within truncation_voxels cells
+    // of the blob's columns (with the neighbouring blob cell's upper bound, from the plane up:
+    // vertical faces seen from the side) count too; a cell between two blobs goes to the first.
+    const int kPointRing = std::max(0, cfg.truncation_voxels);
+    std::vector<int> owner = cell_owner;
+    std::vector<float> lo_d = cell_lo, hi_d = cell_hi;
+    for (int y = 0; y < hs.height; ++y)
+      for (int x = 0; x < hs.width; ++x) {
+        const std::size_t i = hs.index(x, y);
+        if (cell_owner[i] >= 0) continue;
+        for (int dy = -kPointRing; dy <= kPointRing; ++dy)
+          for (int dx = -kPointRing; dx <= kPointRing; ++dx) {
+            if (!hs.inBounds(x + dx, y + dy)) continue;
+            const std::size_t n = hs.index(x + dx, y + dy);
+            if (cell_owner[n] < 0) continue;
+            if (owner[i] < 0) {
+              owner[i] = cell_owner[n];
+              lo_d[i] = static_cast<float>(lo_flat);
+              hi_d[i] = cell_hi[n];
+            } else if (owner[i] == cell_owner[n]) {
+              hi_d[i] = std::max(hi_d[i], cell_hi[n]);
+            }
+          }
+      }
+    cell_owner.swap(owner);
+    cell_lo.swap(lo_d);
+    cell_hi.swap(hi_d);
+    for (const auto& p : source_points) {
+      const Eigen::Vector3d l = src.plane.toLocal(p.cast<double>());
+      const Eigen::Vector2i c = hs.cellOf(l.head<2>());
+      if (!hs.inBounds(c.x(), c.y())) continue;
+      const std::size_t i = hs.index(c.x(), c.y());
+      if (cell_owner[i] < 0) continue;
+      if (l.z() >= cell_lo[i] && l.z() <= cell_hi[i])
+        out[static_cast<std::size_t>(cell_owner[i])].region.points.push_back(p);
+    }
+  }
+  if (!options.keep_stages) {
+    r.source_heights = HeightMap{};
+    r.target_heights = HeightMap{};
+    r.source_objects = ObjectMap{};
+  } else {
+    r.source_heights = hs;
+    r.target_heights = ht;
+    r.source_objects = os;
+  }
+  if (!options.keep_stages) {
+    r.change = HeightChange{};
+    r.validated = Mask2D{};
+  }
+  return out;
+}
+
+namespace {
+
+bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eigen::Vector2i>& b) {
+  std::set<ColumnKey> sa;
+  for (const auto& c : a) sa.insert(key(c));
+  for (const auto& c : b)
+    if (sa.count(key(c)) != 0) return true;
+  return false;
+}
+
+int typeOrder(ChangeType t) {
+  return static_cast<int>(t);
+}
+
+}  // namespace
+
+std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
+                                        std::vector<CandidateChange> added, const Config& cfg) {
+  std::vector<ChangeEvent> events;
+  std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
+
+  // Moved: greedy over the pairs with matching shapes, best first.
+  std::vector<std::tuple<double, std::size_t, std::size_t>> pairs;
+  for (std::size_t i = 0; i < removed.size(); ++i)
+    for (std::size_t j = 0; j < added.size(); ++j) {
+      const double d = shapeDistance(removed[i].region.shape, added[j].region.shape);
+      if (d < kMovedShapeDistance) pairs.emplace_back(d, i, j);
+    }
+  std::sort(pairs.begin(), pairs.end());
+  for (const auto& [d, i, j] : pairs) {
+    if (r_used[i] || a_used[j]) continue;
+    r_used[i] = a_used[j] = true;
+    ChangeEvent e;
+    e.type = ChangeType::Moved;
+    e.reference = std::move(removed[i].region);
+    e.current = std::move(added[j].region);
+    events.push_back(std::move(e));
+  }
+
+  // Replaced: a removed object with something else standing on its footprint now.
+  for (std::size_t i = 0; i < removed.size(); ++i) {
+    if (r_used[i]) continue;
+    CandidateChange& r = removed[i];
+    ChangeEvent e;
+    for (std::size_t j = 0; j < added.size(); ++j) {
+      if (a_used[j] || added[j].region.plane_id != r.target_plane_id) continue;
+      if (!columnsOverlap(r.target_columns, added[j].region.columns)) continue;
+      a_used[j] = true;
+      appendRegion(e.current, added[j].region);
+    }
+    if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
+        !r.target_object.empty())
+      e.current = std::move(r.target_object);
+    if (e.current.empty()) continue;
+    r_used[i] = true;
+    e.type = ChangeType::Replaced;
+    e.reference = std::move(r.region);
+    events.push_back(std::move(e));
+  }
+
+  for (std::size_t i = 0; i < removed.size(); ++i) {
+    if (r_used[i]) continue;
+    ChangeEvent e;
+    e.type = ChangeType::Removed;
+    e.reference = std::move(removed[i].region);
+    events.push_back(std::move(e));
+  }
+  for (std::size_t j = 0; j < added.size(); ++j) {
+    if (a_used[j]) continue;
+    ChangeEvent e;
+    e.type = ChangeType::Added;
+    e.current = std::move(added[j].region);
+    events.push_back(std::move(e));
+  }
+
+  std::stable_sort(events.begin(), events.end(), [](const ChangeEvent& a, const ChangeEvent& b) {
+    const auto ka = std::make_tuple(typeOrder(a.type), a.planeId(), a.primary().centroid.x(),
+                                    a.primary().centroid.y(), a.primary().centroid.z());
+    const auto kb = std::make_tuple(typeOrder(b.type), b.planeId(), b.primary().centroid.x(),
+                                    b.primary().centroid.y(), b.primary().centroid.z());
+    return ka < kb;
+  });
+  for (std::size_t k = 0; k < events.size(); ++k) {
+    ChangeEvent& e = events[k];
+    e.id = static_cast<int>(k) + 1;
+    e.confidence = std::max(confidenceOf(e.reference, cfg), confidenceOf(e.current, cfg));
+  }
+  return events;
+}
+
+ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
+                        const DetectOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (reference.config().voxel_size != current.config().voxel_size)
+    throw Error("map", "the reference and current maps have different voxel sizes (" +
+                           std::to_string(reference.config().voxel_size) + " vs " +
+                           std::to_string(current.config().voxel_size) + " m)");
+  ChangeSet set;
+  const auto& rp = reference.planes();
+  const auto& cp = current.planes();
+  std::vector<PlaneMaps> rmaps(rp.size()), cmaps(cp.size());
+  std::vector<bool> rdone(rp.size(), false), cdone(cp.size(), false);
+  const auto mapsOf = [&](bool ref, int id) -> const PlaneMaps& {
+    auto& done = ref ? rdone : cdone;
+    auto& maps = ref ? rmaps : cmaps;
+    const auto i = static_cast<std::size_t>(id);
+    if (!done[i]) {
+      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg);
+      done[i] = true;
+    }
+    return maps[i];
+  };
+
+  // One target per source (registerPlanes) and one source per target: the source plane closest
+  // to the target (smallest |gap|) keeps it. A second source plane on the same target is a
+  // different surface (a box top 7 cm above a table, within δd of it): comparing it with the
+  // target would shift every height by the gap, and its content lies in the band of the plane
+  // that kept the target anyway.
+  const auto oneToOne = [](std::vector<PlaneMatch> ms) {
+    std::stable_sort(ms.begin(), ms.end(), [](const PlaneMatch& a, const PlaneMatch& b) {
+      return std::abs(a.offset_gap) < std::abs(b.offset_gap);
+    });
+    std::vector<PlaneMatch> out;
+    std::set<int> taken;
+    for (const PlaneMatch& m : ms)
+      if (taken.insert(m.target_id).second) out.push_back(m);
+    std::sort(out.begin(), out.end(),
+              [](const PlaneMatch& a, const PlaneMatch& b) { return a.source_id < b.source_id; });
+    return out;
+  };
+
+  std::vector<CandidateChange> removed, added;
+  // reference -> current: removed candidates; the refined transforms are reused backwards.
+  std::map<std::pair<int, int>, Pose> refined;  // (ref id, cur id) -> T_cur_ref
+  for (const PlaneMatch& m : oneToOne(registerPlanes(reference, current, cfg))) {
+    PlanePairResult res;
+    res.reference_to_current = true;
+    auto c = comparePlanePair(rp[static_cast<std::size_t>(m.source_id)], mapsOf(true, m.source_id),
+                              cp[static_cast<std::size_t>(m.target_id)], mapsOf(false, m.target_id),
+                              m, cfg.refine_inplane, reference.points(), current.points(), cfg,
+                              options, &res);
+    refined[{m.source_id, m.target_id}] = res.match.T_target_source_local;
+    for (auto& x : c) removed.push_back(std::move(x));
+    set.pairs.push_back(std::move(res));
+  }
+  for (PlaneMatch m : oneToOne(registerPlanes(current, reference, cfg))) {
+    PlanePairResult res;
+    res.reference_to_current = false;
+    const auto it = refined.find({m.target_id, m.source_id});
+    const bool reuse = it != refined.end();
+    if (reuse) m.T_target_source_local = it->second.inverse();
+    auto c = comparePlanePair(cp[static_cast<std::size_t>(m.source_id)], mapsOf(false, m.source_id),
+                              rp[static_cast<std::size_t>(m.target_id)], mapsOf(true, m.target_id),
+                              m, cfg.refine_inplane && !reuse, current.points(), reference.points(),
+                              cfg, options, &res);
+    for (auto& x : c) added.push_back(std::move(x));
+    set.pairs.push_back(std::move(res));
+  }
+  set.events = assembleEvents(std::move(removed), std::move(added), cfg);
+  set.milliseconds =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return set;
+}
+
+}  // namespace planesdf
