@@ -184,6 +184,12 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg);
 
+/// One source per target: of the matches sharing a target, the one with the smallest |gap|
+/// keeps it (a second source plane on the same target is another surface — a box top 7 cm above
+/// a table, within δd of it — whose content lies in the band of the plane that kept the target;
+/// comparing it would shift every height by the gap). Result ordered by source id.
+std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> matches);
+
 /// Smallest fraction of a removed footprint lying on current objects for a replaced event that
 /// has no added candidate.
 constexpr double kReplacedMinOverlap = 0.5;

@@ -74,10 +74,12 @@ std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, con
 
 /// Search window of refineInPlane.
 struct InPlaneSearch {
-  double max_shift = 0.04;    ///< m, along u and v (both ways)
-  double shift_step = 0.0;    ///< m; 0 = the target cell size (1-cell steps)
-  double max_yaw_deg = 3.0;   ///< degrees, both ways
-  double yaw_step_deg = 0.5;  ///< degrees
+  /// m, along u and v (both ways). A frame error of t metres and r radians moves points at
+  /// distance D from its centre by up to t + r D in the plane: 3 cm and 2 degrees at 1.2 m.
+  double max_shift = 0.08;
+  double shift_step = 0.0;    ///< m; 0 = the target cell size (1-cell steps), fine search
+  double max_yaw_deg = 4.0;   ///< degrees, both ways
+  double yaw_step_deg = 0.5;  ///< degrees, fine search
   int max_cells = 40000;      ///< source cells scored per candidate (evenly subsampled)
   int min_compared = 50;      ///< fewer cells observed in both: no refinement
 };
@@ -100,10 +102,14 @@ struct InPlaneRefinement {
 
 /// Refines the in-plane part of `T_target_source_local` so that cells observed in both height
 /// maps agree best. The samples are the source cells (evenly subsampled) whose nearest target
-/// cell under the initial T is observed; exhaustive search over a yaw (about the centre of the
-/// samples) and a shift (du, dv) on the grid of `search`. The cost of a candidate is the number
-/// of samples whose nearest target cell differs by more than cfg.delta_h — a sample moved off the
-/// observed target counts as a mismatch, so differences cannot hide in unobserved areas — ties
+/// cell under the initial T is observed; search over a yaw (about the centre of the samples) and
+/// a shift (du, dv) within the window of `search`, coarse to fine: 2-cell and 1-degree steps over
+/// the whole window on at most 6000 samples (a sample agrees there when a target cell within one
+/// cell agrees), then 1-cell and yaw_step steps around the coarse
+/// best on all samples. The cost of a candidate is the number
+/// of samples whose nearest target cell differs by more than cfg.delta_h — a sample that
+/// mismatched under the initial T and is moved off the observed target still counts, so
+/// differences cannot hide in unobserved areas — ties
 /// broken by the mean capped absolute difference, then by the smaller motion. Model selection:
 /// T becomes Δ * T only when the best candidate removes at least 20 % of the initial mismatches
 /// and at least 20 cells (changed objects mismatch wherever they are put; drift makes a shift pay

@@ -553,6 +553,19 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   return events;
 }
 
+std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> ms) {
+  std::stable_sort(ms.begin(), ms.end(), [](const PlaneMatch& a, const PlaneMatch& b) {
+    return std::abs(a.offset_gap) < std::abs(b.offset_gap);
+  });
+  std::vector<PlaneMatch> out;
+  std::set<int> taken;
+  for (const PlaneMatch& m : ms)
+    if (taken.insert(m.target_id).second) out.push_back(m);
+  std::sort(out.begin(), out.end(),
+            [](const PlaneMatch& a, const PlaneMatch& b) { return a.source_id < b.source_id; });
+  return out;
+}
+
 ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
                         const DetectOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -576,28 +589,10 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     return maps[i];
   };
 
-  // One target per source (registerPlanes) and one source per target: the source plane closest
-  // to the target (smallest |gap|) keeps it. A second source plane on the same target is a
-  // different surface (a box top 7 cm above a table, within δd of it): comparing it with the
-  // target would shift every height by the gap, and its content lies in the band of the plane
-  // that kept the target anyway.
-  const auto oneToOne = [](std::vector<PlaneMatch> ms) {
-    std::stable_sort(ms.begin(), ms.end(), [](const PlaneMatch& a, const PlaneMatch& b) {
-      return std::abs(a.offset_gap) < std::abs(b.offset_gap);
-    });
-    std::vector<PlaneMatch> out;
-    std::set<int> taken;
-    for (const PlaneMatch& m : ms)
-      if (taken.insert(m.target_id).second) out.push_back(m);
-    std::sort(out.begin(), out.end(),
-              [](const PlaneMatch& a, const PlaneMatch& b) { return a.source_id < b.source_id; });
-    return out;
-  };
-
   std::vector<CandidateChange> removed, added;
   // reference -> current: removed candidates; the refined transforms are reused backwards.
   std::map<std::pair<int, int>, Pose> refined;  // (ref id, cur id) -> T_cur_ref
-  for (const PlaneMatch& m : oneToOne(registerPlanes(reference, current, cfg))) {
+  for (const PlaneMatch& m : uniqueMatches(registerPlanes(reference, current, cfg))) {
     PlanePairResult res;
     res.reference_to_current = true;
     auto c = comparePlanePair(rp[static_cast<std::size_t>(m.source_id)], mapsOf(true, m.source_id),
@@ -608,7 +603,7 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     for (auto& x : c) removed.push_back(std::move(x));
     set.pairs.push_back(std::move(res));
   }
-  for (PlaneMatch m : oneToOne(registerPlanes(current, reference, cfg))) {
+  for (PlaneMatch m : uniqueMatches(registerPlanes(current, reference, cfg))) {
     PlanePairResult res;
     res.reference_to_current = false;
     const auto it = refined.find({m.target_id, m.source_id});

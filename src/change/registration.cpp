@@ -126,11 +126,14 @@ namespace {
 
 /// Smallest improvement refineInPlane accepts (see there).
 constexpr int kMinGainCells = 20;
+/// Samples of the coarse search of refineInPlane.
+constexpr std::size_t kCoarseSamples = 6000;
 constexpr double kMinGainFraction = 0.2;
 
 struct Sample {
-  Eigen::Vector2d uv;  ///< source cell centre mapped by the initial T, target-local
-  float h;             ///< source height
+  Eigen::Vector2d uv;       ///< source cell centre mapped by the initial T, target-local
+  float h;                  ///< source height
+  bool mismatched = false;  ///< differs from the target under the initial T
 };
 
 struct Score {
@@ -140,9 +143,11 @@ struct Score {
 };
 
 /// Scores the samples moved by a yaw `yaw` about `pivot` then a shift `shift` (target frame).
+/// With `slack` > 0 a sample agrees when any target cell within `slack` cells (Chebyshev) agrees
+/// (the coarse search: its steps are 2 cells, so the right answer is at most 1 cell away).
 Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
                      const Eigen::Vector2d& pivot, double yaw, const Eigen::Vector2d& shift,
-                     double delta_h) {
+                     double delta_h, int slack = 0) {
   const double c = std::cos(yaw);
   const double s = std::sin(yaw);
   const double inv = 1.0 / tgt.cell_size;
@@ -156,17 +161,28 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
     const double fx = std::floor(u * inv) - tgt.i0;
     const double fy = std::floor(v * inv) - tgt.j0;
     const bool inside = fx >= 0.0 && fy >= 0.0 && fx < tgt.width && fy < tgt.height;
-    const float ht = inside ? tgt.at(static_cast<int>(fx), static_cast<int>(fy)) : kUnobserved;
+    const int x = inside ? static_cast<int>(fx) : 0, y = inside ? static_cast<int>(fy) : 0;
+    const float ht = inside ? tgt.at(x, y) : kUnobserved;
     if (ht == kUnobserved) {
-      // The samples are the cells compared at the initial T: one that a candidate moves off
-      // the observed target counts as a mismatch, so no candidate wins by hiding differences in
-      // unobserved areas (the shadows beside objects in single views).
-      ++sc.compared;
-      ++sc.mismatches;
-      sum += cap;
+      // The samples are the cells compared at the initial T. One that mismatched there and that
+      // a candidate moves off the observed target still counts as a mismatch, so no candidate
+      // wins by hiding differences in unobserved areas (the shadows beside objects in single
+      // views); agreeing samples lost at the borders of the observed area do not count.
+      if (smp.mismatched) {
+        ++sc.compared;
+        ++sc.mismatches;
+        sum += cap;
+      }
       continue;
     }
-    const double diff = std::abs(static_cast<double>(ht) - static_cast<double>(smp.h));
+    double diff = std::abs(static_cast<double>(ht) - static_cast<double>(smp.h));
+    for (int dy = -slack; dy <= slack && diff > delta_h; ++dy)
+      for (int dx = -slack; dx <= slack; ++dx) {
+        if (!tgt.inBounds(x + dx, y + dy)) continue;
+        const float hn = tgt.at(x + dx, y + dy);
+        if (hn == kUnobserved) continue;
+        diff = std::min(diff, std::abs(static_cast<double>(hn) - static_cast<double>(smp.h)));
+      }
     ++sc.compared;
     if (diff > delta_h) ++sc.mismatches;
     sum += std::min(diff, cap);
@@ -213,7 +229,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
       const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
       const Eigen::Vector2i tc = tgt.cellOf(uv);
       if (!tgt.inBounds(tc.x(), tc.y()) || !tgt.observed(tc.x(), tc.y())) continue;
-      samples.push_back({uv, h});
+      const bool mismatched = std::abs(static_cast<double>(tgt.at(tc.x(), tc.y())) -
+                                       static_cast<double>(h)) > cfg.delta_h;
+      samples.push_back({uv, h, mismatched});
       lo = lo.cwiseMin(uv);
       hi = hi.cwiseMax(uv);
     }
@@ -229,39 +247,57 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   if (initial.compared < std::max(1, search.min_compared)) return out;
 
   const double step = search.shift_step > 0.0 ? search.shift_step : tgt.cell_size;
-  const int ns = static_cast<int>(std::floor(search.max_shift / step + 1e-9));
-  const double ystep = search.yaw_step_deg > 0.0 ? search.yaw_step_deg : 1.0;
-  const int ny = static_cast<int>(std::floor(search.max_yaw_deg / ystep + 1e-9));
+  const double ystep = search.yaw_step_deg > 0.0 ? search.yaw_step_deg : 0.5;
 
-  // Candidates in order of increasing motion, so ties keep the smaller correction.
   struct Cand {
-    int iu, iv, iy;
-    double motion;
+    double du = 0.0, dv = 0.0, yaw_deg = 0.0;
+    double motion() const { return std::hypot(du, dv) + 0.01 * std::abs(yaw_deg); }
   };
-  std::vector<Cand> cands;
-  for (int iy = -ny; iy <= ny; ++iy) {
-    for (int iv = -ns; iv <= ns; ++iv) {
-      for (int iu = -ns; iu <= ns; ++iu) {
-        if (iu == 0 && iv == 0 && iy == 0) continue;
-        const double m = std::hypot(iu * step, iv * step) + 0.01 * std::abs(iy * ystep);
-        cands.push_back({iu, iv, iy, m});
+  // Scores every candidate of a grid centred on `c` (ties keep the smaller motion).
+  const auto gridSearch = [&](const std::vector<Sample>& smp, const Cand& c, int ns, double st,
+                              int ny, double yst, int slack, Cand* best_c, Score* best_s) {
+    std::vector<Cand> cands;
+    for (int iy = -ny; iy <= ny; ++iy)
+      for (int iv = -ns; iv <= ns; ++iv)
+        for (int iu = -ns; iu <= ns; ++iu) {
+          Cand k{c.du + iu * st, c.dv + iv * st, c.yaw_deg + iy * yst};
+          if (std::abs(k.du) > search.max_shift + 1e-9 ||
+              std::abs(k.dv) > search.max_shift + 1e-9 ||
+              std::abs(k.yaw_deg) > search.max_yaw_deg + 1e-9)
+            continue;
+          cands.push_back(k);
+        }
+    std::stable_sort(cands.begin(), cands.end(),
+                     [](const Cand& x, const Cand& y) { return x.motion() < y.motion(); });
+    bool any = false;
+    for (const Cand& k : cands) {
+      const Score sc = scoreCandidate(smp, tgt, pivot, k.yaw_deg * kPi / 180.0,
+                                      Eigen::Vector2d(k.du, k.dv), cfg.delta_h, slack);
+      if (!any || better(sc, *best_s)) {
+        *best_s = sc;
+        *best_c = k;
+        any = true;
       }
     }
-  }
-  std::stable_sort(cands.begin(), cands.end(),
-                   [](const Cand& a, const Cand& b) { return a.motion < b.motion; });
+  };
 
-  Score best = initial;
-  const Cand* best_cand = nullptr;
-  for (const Cand& cd : cands) {
-    const double yaw = cd.iy * ystep * kPi / 180.0;
-    const Score sc = scoreCandidate(samples, tgt, pivot, yaw,
-                                    Eigen::Vector2d(cd.iu * step, cd.iv * step), cfg.delta_h);
-    if (better(sc, best)) {
-      best = sc;
-      best_cand = &cd;
-    }
-  }
+  // Coarse: 2-cell and 1-degree steps over the whole window on at most kCoarseSamples samples;
+  // fine: 1-cell and yaw_step steps within 2 coarse steps of the coarse best, on all samples.
+  std::vector<Sample> coarse_samples;
+  const std::size_t cstride = (samples.size() + kCoarseSamples - 1) / kCoarseSamples;
+  for (std::size_t i = 0; i < samples.size(); i += std::max<std::size_t>(1, cstride))
+    coarse_samples.push_back(samples[i]);
+  const double cstep = 2.0 * step, cystep = std::max(1.0, ystep);
+  Cand coarse;
+  Score coarse_score;
+  gridSearch(coarse_samples, Cand{}, static_cast<int>(std::floor(search.max_shift / cstep + 1e-9)),
+             cstep, static_cast<int>(std::floor(search.max_yaw_deg / cystep + 1e-9)), cystep, 1,
+             &coarse, &coarse_score);
+  Cand fine;
+  Score best;
+  gridSearch(samples, coarse, 2, step, static_cast<int>(std::ceil(cystep / ystep)), ystep, 0, &fine,
+             &best);
+  const Cand* best_cand = better(best, initial) ? &fine : nullptr;
   if (best_cand == nullptr) return out;
   // Model selection: keep the initial T unless the evidence is clear — the best candidate must
   // remove at least kMinGainFraction of the initial mismatches and kMinGainCells cells (changed
@@ -270,9 +306,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   if (gain < kMinGainCells || gain < kMinGainFraction * initial.mismatches) return out;
 
   out.applied = true;
-  out.du = best_cand->iu * step;
-  out.dv = best_cand->iv * step;
-  out.dyaw = best_cand->iy * ystep * kPi / 180.0;
+  out.du = best_cand->du;
+  out.dv = best_cand->dv;
+  out.dyaw = best_cand->yaw_deg * kPi / 180.0;
   out.compared_after = best.compared;
   out.mismatches_after = best.mismatches;
   out.mean_abs_after = best.mean_abs;

@@ -1,0 +1,245 @@
+// detectChanges and ChangeDetector against analytic tabletop scenes rendered here: a table with
+// objects seen from rings of depth frames, one session before and one after a change.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "analytic_scene.hpp"
+#include "planesdf/change.hpp"
+#include "planesdf/error.hpp"
+#include "planesdf/events.hpp"
+#include "planesdf/io/ply.hpp"
+#include "test_support.hpp"
+
+namespace {
+using namespace planesdf;
+using test::AnalyticScene;
+using test::Primitive;
+
+constexpr double kTable = 0.75;
+
+// Objects on the table (z = 0.75): a 10 x 6 x 8 cm box, a cylinder r 4 cm h 12 cm, a sphere
+// r 5 cm, and the cylinder moved by 20 cm.
+Primitive box() {
+  return Primitive::box({0.05, 0.02, kTable}, {0.15, 0.08, kTable + 0.08});
+}
+Primitive cylinderAt(double x, double y) {
+  return Primitive::cylinder({x, y, kTable}, 0.04, 0.12);
+}
+Primitive sphere() {
+  return Primitive::sphere({-0.12, 0.15, kTable + 0.05}, 0.05);
+}
+
+AnalyticScene table(std::vector<Primitive> objects) {
+  AnalyticScene s;
+  s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));  // floor
+  s.primitives.push_back(Primitive::box({-0.6, -0.4, 0.72}, {0.6, 0.4, kTable}));
+  for (auto& o : objects) s.primitives.push_back(o);
+  return s;
+}
+
+/// A session: `n` views on a ring around the table, poses displaced by `drift` (applied to the
+/// reported poses, as a localisation error between sessions).
+Map session(const AnalyticScene& scene, int n = 8, const Pose& drift = Pose::Identity()) {
+  Map m{Config{}};
+  const Intrinsics k;
+  for (const Pose& T : test::ringPoses({0, 0, kTable}, 0.9, 0.55, n))
+    m.integrate(test::renderDepth(scene, k, T), drift * T);
+  return m;
+}
+
+const ChangeEvent* findType(const ChangeSet& s, ChangeType t) {
+  for (const auto& e : s.events)
+    if (e.type == t) return &e;
+  return nullptr;
+}
+
+/// Largest distance (m) of a region's points to the surface of `p`.
+double maxSurfaceDistance(const ChangeRegion& r, const Primitive& p) {
+  double worst = 0.0;
+  for (const auto& q : r.points) worst = std::max(worst, std::abs(p.sdf(q.cast<double>())));
+  return worst;
+}
+
+const Map& beforeMap() {
+  static const Map m = session(table({box(), cylinderAt(-0.15, -0.10)}));
+  return m;
+}
+// After: the box is gone, a sphere is new, the cylinder moved 20 cm along +x.
+const AnalyticScene& afterScene() {
+  static const AnalyticScene s = table({sphere(), cylinderAt(0.05, -0.10)});
+  return s;
+}
+const Map& afterMap() {
+  static const Map m = session(afterScene());
+  return m;
+}
+
+TEST(DetectChanges, ASceneAgainstItselfHasNoChange) {
+  const ChangeSet s = detectChanges(beforeMap(), beforeMap(), Config{});
+  EXPECT_TRUE(s.events.empty()) << s.events.size() << " events";
+}
+
+TEST(DetectChanges, ASecondSessionWithLocalisationDriftHasNoChange) {
+  // 2 cm and 1.5 degrees of drift of the whole session (poses reported in a displaced frame).
+  Pose drift = Pose::Identity();
+  drift.linear() = Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  drift.translation() = Eigen::Vector3d(0.02, -0.01, 0.0);
+  const Map drifted = session(table({box(), cylinderAt(-0.15, -0.10)}), 8, drift);
+  const ChangeSet s = detectChanges(beforeMap(), drifted, Config{});
+  EXPECT_TRUE(s.events.empty()) << s.events.size() << " events, first: "
+                                << (s.events.empty() ? "" : toString(s.events[0].type));
+}
+
+TEST(DetectChanges, RemovedAddedAndMovedObjectsAreTypedAndLocated) {
+  DetectOptions opt;
+  opt.keep_stages = true;
+  const ChangeSet s = detectChanges(beforeMap(), afterMap(), Config{}, opt);
+  ASSERT_EQ(s.events.size(), 3u) << changesToJson(s.events);
+
+  const ChangeEvent* removed = findType(s, ChangeType::Removed);
+  ASSERT_NE(removed, nullptr);
+  // Centroid of the box's voxels: within 2 cm of its centre in the plane (the voxels span the
+  // box's height range, so only u, v are compared).
+  EXPECT_LT((removed->reference.centroid.head<2>() - Eigen::Vector2d(0.10, 0.05)).norm(), 0.02);
+  EXPECT_GT(removed->reference.points.size(), 100u);
+  // Every reported point lies on the box (one voxel of tolerance: points are kept on a 3.5 mm
+  // grid).
+  EXPECT_LT(maxSurfaceDistance(removed->reference, box()), 0.007);
+
+  const ChangeEvent* added = findType(s, ChangeType::Added);
+  ASSERT_NE(added, nullptr);
+  EXPECT_LT((added->current.centroid.head<2>() - Eigen::Vector2d(-0.12, 0.15)).norm(), 0.02);
+  EXPECT_LT(maxSurfaceDistance(added->current, sphere()), 0.007);
+
+  const ChangeEvent* moved = findType(s, ChangeType::Moved);
+  ASSERT_NE(moved, nullptr);
+  EXPECT_LT((moved->reference.centroid.head<2>() - Eigen::Vector2d(-0.15, -0.10)).norm(), 0.02);
+  EXPECT_LT((moved->current.centroid.head<2>() - Eigen::Vector2d(0.05, -0.10)).norm(), 0.02);
+  EXPECT_LT(maxSurfaceDistance(moved->current, cylinderAt(0.05, -0.10)), 0.007);
+  EXPECT_LT(maxSurfaceDistance(moved->reference, cylinderAt(-0.15, -0.10)), 0.007);
+  for (const auto& e : s.events) {
+    EXPECT_GE(e.confidence, 0.5);
+    EXPECT_LE(e.confidence, 1.0);
+  }
+  // Ids are 1..N.
+  for (std::size_t i = 0; i < s.events.size(); ++i) EXPECT_EQ(s.events[i].id, int(i) + 1);
+}
+
+TEST(DetectChanges, OutputsFollowTheDesignContract) {
+  DetectOptions opt;
+  opt.keep_stages = true;
+  const ChangeSet s = detectChanges(beforeMap(), afterMap(), Config{}, opt);
+  test::TempDir dir;
+  writeChangeOutputs(dir.path(), s);
+  std::ifstream in(dir.path() + "/changes.json");
+  const nlohmann::json j = nlohmann::json::parse(in);
+  ASSERT_TRUE(j.is_array());
+  ASSERT_EQ(j.size(), s.events.size());
+  for (const auto& e : j) {
+    for (const char* k : {"id", "type", "plane_id", "bbox_min", "bbox_max", "centroid",
+                          "num_voxels", "num_points", "confidence"})
+      EXPECT_TRUE(e.contains(k)) << k;
+    const auto mn = e["bbox_min"].get<std::vector<double>>();
+    const auto mx = e["bbox_max"].get<std::vector<double>>();
+    for (int a = 0; a < 3; ++a) EXPECT_LE(mn[a], mx[a]);
+  }
+  const PointCloud removed = io::readPly(dir.path() + "/removed_points.ply");
+  const PointCloud added = io::readPly(dir.path() + "/added_points.ply");
+  ASSERT_NE(removed.field("change_id"), nullptr);
+  ASSERT_NE(added.field("change_id"), nullptr);
+  std::size_t n_removed = 0, n_added = 0;
+  for (const auto& e : s.events) {
+    n_removed += e.reference.points.size();
+    n_added += e.current.points.size();
+  }
+  EXPECT_EQ(removed.size(), n_removed);
+  EXPECT_EQ(added.size(), n_added);
+  // One picture per stage and plane pair and direction.
+  EXPECT_TRUE(std::filesystem::exists(dir.path() + "/planes"));
+  std::size_t pngs = 0;
+  for (const auto& f : std::filesystem::directory_iterator(dir.path() + "/planes"))
+    pngs += f.path().extension() == ".png";
+  EXPECT_EQ(pngs, s.pairs.size() * 10);
+}
+
+TEST(DetectChanges, DifferentVoxelSizesAreAnError) {
+  Config c;
+  c.voxel_size = 0.01;
+  const Map other(c);
+  EXPECT_THROW(detectChanges(beforeMap(), other, Config{}), Error);
+}
+
+TEST(ShapeDistance, SameObjectIsCloseAndDifferentObjectsAreFar) {
+  ShapeSignature a;
+  a.cells = 100;
+  a.area = 0.0049;
+  a.max_height = 0.12;
+  a.volume = 0.0005;
+  a.major = 0.02;
+  a.minor = 0.02;
+  a.deciles.assign(10, 0.12);
+  ShapeSignature b = a;
+  b.area *= 1.1;
+  b.volume *= 1.1;
+  EXPECT_LT(shapeDistance(a, b), kMovedShapeDistance);
+  ShapeSignature c = a;
+  c.max_height = 0.05;
+  c.deciles.assign(10, 0.05);
+  EXPECT_GT(shapeDistance(a, c), kMovedShapeDistance);
+  EXPECT_TRUE(std::isinf(shapeDistance(a, ShapeSignature{})));
+}
+
+TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
+  ChangeDetector det(beforeMap(), Config{});
+  std::vector<ChangeEvent> heard;
+  det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
+  Map cur{Config{}};
+  const Intrinsics k;
+  const auto poses = test::ringPoses({0, 0, kTable}, 0.9, 0.55, 8);
+  for (const Pose& T : poses) cur.integrate(test::renderDepth(afterScene(), k, T), T);
+  const UpdateStats first = det.update(cur);
+  EXPECT_GT(first.pairs_checked, 0);
+  ASSERT_EQ(heard.size(), 3u);
+  for (const auto& e : heard) EXPECT_EQ(e.status, ChangeStatus::New);
+
+  // Nothing integrated since: every pair is reused and nobody hears anything.
+  const UpdateStats again = det.update(cur);
+  EXPECT_EQ(again.pairs_checked, 0);
+  EXPECT_EQ(again.pairs_reused, first.pairs_checked);
+  EXPECT_EQ(heard.size(), 3u);
+  EXPECT_EQ(det.events().size(), 3u);
+}
+
+TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
+  // The current session first sees the table without the box (removed), then the box is back
+  // and seen from many more views: the removal is retracted.
+  ChangeDetector det(beforeMap(), Config{});
+  std::vector<ChangeEvent> heard;
+  det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
+  Map cur{Config{}};
+  const Intrinsics k;
+  const AnalyticScene without = table({cylinderAt(-0.15, -0.10)});
+  const AnalyticScene with = table({box(), cylinderAt(-0.15, -0.10)});
+  for (const Pose& T : test::ringPoses({0, 0, kTable}, 0.9, 0.55, 4))
+    cur.integrate(test::renderDepth(without, k, T), T);
+  det.update(cur);
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_EQ(heard[0].type, ChangeType::Removed);
+  const int id = heard[0].id;
+  for (int round = 0; round < 4; ++round)
+    for (const Pose& T : test::ringPoses({0, 0, kTable}, 0.85, 0.5, 8))
+      cur.integrate(test::renderDepth(with, k, T), T);
+  det.update(cur);
+  ASSERT_EQ(heard.size(), 2u);
+  EXPECT_EQ(heard[1].status, ChangeStatus::Retracted);
+  EXPECT_EQ(heard[1].id, id);
+  EXPECT_TRUE(det.events().empty());
+}
+
+}  // namespace
