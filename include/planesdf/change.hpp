@@ -23,7 +23,9 @@
 
 #include <array>
 #include <cstdint>
+#include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "planesdf/comparison.hpp"
@@ -175,6 +177,24 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
                                               const std::vector<Eigen::Vector3f>& target_points,
                                               const Config& cfg, const DetectOptions& options,
                                               PlanePairResult* result);
+
+/// In-plane transforms the reference→current comparisons settled on: (reference plane id,
+/// current plane id) -> T_current_reference (plane-local).
+using RefinedTransforms = std::map<std::pair<int, int>, Pose>;
+
+/// comparePlanePair for one match of registerPlanes(reference, current) (`reference_to_current`)
+/// or of registerPlanes(current, reference), with the source and target taken from the right map.
+/// Forward pairs are refined in-plane (when cfg.refine_inplane) and record the transform in
+/// `refined`; a reverse pair whose forward pair is there reuses its inverse instead of refining
+/// again, so both directions use one alignment. `result`, when given, receives the stages and the
+/// direction.
+std::vector<CandidateChange> compareMatchedPair(
+    const Map& reference, const Map& current, bool reference_to_current, PlaneMatch match,
+    const PlaneMaps& source_maps, const PlaneMaps& target_maps, RefinedTransforms& refined,
+    const Config& cfg, const DetectOptions& options, PlanePairResult* result);
+
+/// True when the two lists share a column.
+bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eigen::Vector2i>& b);
 
 /// Turns removed and added candidates into events: moved pairs first (shapeDistance below
 /// kMovedShapeDistance, greedy by distance), then replaced (a removed candidate with the added

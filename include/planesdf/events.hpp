@@ -56,6 +56,7 @@ class ChangeDetector {
   struct PairCache {
     std::uint64_t current_revision = 0;
     std::vector<CandidateChange> candidates;
+    Pose T_target_source = Pose::Identity();  ///< the transform the comparison used
   };
   struct CurrentMaps {
     PlaneMaps maps;

@@ -463,8 +463,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   return out;
 }
 
-namespace {
-
 bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eigen::Vector2i>& b) {
   std::set<ColumnKey> sa;
   for (const auto& c : a) sa.insert(key(c));
@@ -472,6 +470,8 @@ bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eig
     if (sa.count(key(c)) != 0) return true;
   return false;
 }
+
+namespace {
 
 int typeOrder(ChangeType t) {
   return static_cast<int>(t);
@@ -566,6 +566,31 @@ std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> ms) {
   return out;
 }
 
+std::vector<CandidateChange> compareMatchedPair(
+    const Map& reference, const Map& current, bool reference_to_current, PlaneMatch match,
+    const PlaneMaps& source_maps, const PlaneMaps& target_maps, RefinedTransforms& refined,
+    const Config& cfg, const DetectOptions& options, PlanePairResult* result) {
+  const Map& src = reference_to_current ? reference : current;
+  const Map& tgt = reference_to_current ? current : reference;
+  bool refine = cfg.refine_inplane;
+  if (!reference_to_current) {
+    const auto it = refined.find({match.target_id, match.source_id});
+    if (it != refined.end()) {
+      match.T_target_source_local = it->second.inverse();
+      refine = false;
+    }
+  }
+  PlanePairResult local;
+  PlanePairResult& res = result != nullptr ? *result : local;
+  res.reference_to_current = reference_to_current;
+  auto out = comparePlanePair(src.planes()[static_cast<std::size_t>(match.source_id)], source_maps,
+                              tgt.planes()[static_cast<std::size_t>(match.target_id)], target_maps,
+                              match, refine, src.points(), tgt.points(), cfg, options, &res);
+  if (reference_to_current)
+    refined[{match.source_id, match.target_id}] = res.match.T_target_source_local;
+  return out;
+}
+
 ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
                         const DetectOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -590,31 +615,17 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
   };
 
   std::vector<CandidateChange> removed, added;
-  // reference -> current: removed candidates; the refined transforms are reused backwards.
-  std::map<std::pair<int, int>, Pose> refined;  // (ref id, cur id) -> T_cur_ref
-  for (const PlaneMatch& m : uniqueMatches(registerPlanes(reference, current, cfg))) {
-    PlanePairResult res;
-    res.reference_to_current = true;
-    auto c = comparePlanePair(rp[static_cast<std::size_t>(m.source_id)], mapsOf(true, m.source_id),
-                              cp[static_cast<std::size_t>(m.target_id)], mapsOf(false, m.target_id),
-                              m, cfg.refine_inplane, reference.points(), current.points(), cfg,
-                              options, &res);
-    refined[{m.source_id, m.target_id}] = res.match.T_target_source_local;
-    for (auto& x : c) removed.push_back(std::move(x));
-    set.pairs.push_back(std::move(res));
-  }
-  for (PlaneMatch m : uniqueMatches(registerPlanes(current, reference, cfg))) {
-    PlanePairResult res;
-    res.reference_to_current = false;
-    const auto it = refined.find({m.target_id, m.source_id});
-    const bool reuse = it != refined.end();
-    if (reuse) m.T_target_source_local = it->second.inverse();
-    auto c = comparePlanePair(cp[static_cast<std::size_t>(m.source_id)], mapsOf(false, m.source_id),
-                              rp[static_cast<std::size_t>(m.target_id)], mapsOf(true, m.target_id),
-                              m, cfg.refine_inplane && !reuse, current.points(), reference.points(),
-                              cfg, options, &res);
-    for (auto& x : c) added.push_back(std::move(x));
-    set.pairs.push_back(std::move(res));
+  RefinedTransforms refined;
+  for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
+    const Map& src = forward ? reference : current;
+    const Map& tgt = forward ? current : reference;
+    for (const PlaneMatch& m : uniqueMatches(registerPlanes(src, tgt, cfg))) {
+      PlanePairResult res;
+      auto c = compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
+                                  mapsOf(!forward, m.target_id), refined, cfg, options, &res);
+      for (auto& x : c) (forward ? removed : added).push_back(std::move(x));
+      set.pairs.push_back(std::move(res));
+    }
   }
   set.events = assembleEvents(std::move(removed), std::move(added), cfg);
   set.milliseconds =

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <set>
 #include <utility>
 
 #include "planesdf/config_io.hpp"
@@ -13,12 +12,8 @@ namespace planesdf {
 namespace {
 
 bool sideOverlap(const ChangeRegion& a, const ChangeRegion& b) {
-  if (a.empty() || b.empty() || a.plane_id != b.plane_id) return false;
-  std::set<std::pair<int, int>> cols;
-  for (const auto& c : a.columns) cols.insert({c.x(), c.y()});
-  for (const auto& c : b.columns)
-    if (cols.count({c.x(), c.y()}) != 0) return true;
-  return false;
+  return !a.empty() && !b.empty() && a.plane_id == b.plane_id &&
+         columnsOverlap(a.columns, b.columns);
 }
 
 bool sameChange(const ChangeEvent& a, const ChangeEvent& b) {
@@ -64,7 +59,6 @@ UpdateStats ChangeDetector::update(const Map& current) {
   UpdateStats stats;
   if (reference_.config().voxel_size != current.config().voxel_size)
     throw Error("map", "the reference and current maps have different voxel sizes");
-  const auto& rp = reference_.planes();
   const auto& cp = current.planes();
 
   // Current plane maps, recomputed when the plane's volume (or the plane set) changed.
@@ -80,49 +74,37 @@ UpdateStats ChangeDetector::update(const Map& current) {
   };
 
   std::map<std::tuple<bool, int, int>, PairCache> next;
-  std::map<std::pair<int, int>, Pose> refined;  // (ref id, cur id) -> T_cur_ref
-  const auto run = [&](bool forward, PlaneMatch m) {
-    const int cur_id = forward ? m.target_id : m.source_id;
-    const std::uint64_t rev = cp[static_cast<std::size_t>(cur_id)].volume.revision();
-    const auto key = std::make_tuple(forward, m.source_id, m.target_id);
-    const auto it = pairs_.find(key);
-    if (it != pairs_.end() && it->second.current_revision == rev &&
-        current_maps_.count(cur_id) != 0 && current_maps_[cur_id].num_planes == cp.size()) {
-      ++stats.pairs_reused;
-      next[key] = it->second;
-      return;
-    }
-    ++stats.pairs_checked;
-    PlanePairResult res;
-    bool refine = cfg_.refine_inplane;
-    if (!forward) {
-      const auto r = refined.find({m.target_id, m.source_id});
-      if (r != refined.end()) {
-        m.T_target_source_local = r->second.inverse();
-        refine = false;
+  RefinedTransforms refined;
+  for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
+    const Map& src = forward ? static_cast<const Map&>(reference_) : current;
+    const Map& tgt = forward ? current : static_cast<const Map&>(reference_);
+    for (const PlaneMatch& m : uniqueMatches(registerPlanes(src, tgt, cfg_))) {
+      const int ref_id = forward ? m.source_id : m.target_id;
+      const int cur_id = forward ? m.target_id : m.source_id;
+      const std::uint64_t rev = cp[static_cast<std::size_t>(cur_id)].volume.revision();
+      const auto key = std::make_tuple(forward, m.source_id, m.target_id);
+      const auto it = pairs_.find(key);
+      const auto maps_it = current_maps_.find(cur_id);
+      if (it != pairs_.end() && it->second.current_revision == rev &&
+          maps_it != current_maps_.end() && maps_it->second.num_planes == cp.size()) {
+        ++stats.pairs_reused;
+        next[key] = it->second;
+        if (forward) refined[{ref_id, cur_id}] = it->second.T_target_source;
+        continue;
       }
-    }
-    PairCache pc;
-    pc.current_revision = rev;
-    if (forward) {
+      ++stats.pairs_checked;
+      const PlaneMaps& ref_maps = reference_maps_[static_cast<std::size_t>(ref_id)];
+      const PlaneMaps& cur_maps = currentMaps(cur_id);
+      PlanePairResult res;
+      PairCache pc;
+      pc.current_revision = rev;
       pc.candidates =
-          comparePlanePair(rp[static_cast<std::size_t>(m.source_id)],
-                           reference_maps_[static_cast<std::size_t>(m.source_id)],
-                           cp[static_cast<std::size_t>(m.target_id)], currentMaps(m.target_id), m,
-                           refine, reference_.points(), current.points(), cfg_, options_, &res);
-      refined[{m.source_id, m.target_id}] = res.match.T_target_source_local;
-    } else {
-      pc.candidates =
-          comparePlanePair(cp[static_cast<std::size_t>(m.source_id)], currentMaps(m.source_id),
-                           rp[static_cast<std::size_t>(m.target_id)],
-                           reference_maps_[static_cast<std::size_t>(m.target_id)], m, refine,
-                           current.points(), reference_.points(), cfg_, options_, &res);
+          compareMatchedPair(reference_, current, forward, m, forward ? ref_maps : cur_maps,
+                             forward ? cur_maps : ref_maps, refined, cfg_, options_, &res);
+      pc.T_target_source = res.match.T_target_source_local;
+      next[key] = std::move(pc);
     }
-    next[key] = std::move(pc);
-  };
-  for (const PlaneMatch& m : uniqueMatches(registerPlanes(reference_, current, cfg_))) run(true, m);
-  for (const PlaneMatch& m : uniqueMatches(registerPlanes(current, reference_, cfg_)))
-    run(false, m);
+  }
   pairs_ = std::move(next);
 
   std::vector<CandidateChange> removed, added;
