@@ -51,6 +51,14 @@ int runFuse(const FuseArgs& args);
 
 int runInfo(const std::string& input);
 
+struct SimulateArgs {
+  std::string scene;  ///< "tabletop", "room" or a scene JSON file
+  unsigned seed = 1;
+  bool seed_given = false;  ///< --seed was on the line (re-seeds the noise of a scene file)
+  std::string out;
+};
+int runSimulate(const SimulateArgs& args);
+
 struct DetectArgs {
   std::string reference;
   std::string current;

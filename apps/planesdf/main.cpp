@@ -131,7 +131,8 @@ int main(int argc, char** argv) {
     if (*fuse) return runFuse(fuse_args);
     if (*eval) return runEval(eval_args);
     if (*demo) return notImplemented("demo", "the simulator is issue 5");
-    if (*simulate) return notImplemented("simulate", "issue 5");
+    if (*simulate)
+      return runSimulate({sim_scene, sim_seed, simulate->count("--seed") > 0, sim_out});
     if (*detect) return runDetect(det_args);
     if (*bench) return notImplemented("bench", "issue 7");
   } catch (const std::exception& e) {  // planesdf::Error and anything else: one line, exit 1

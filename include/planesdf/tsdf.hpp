@@ -294,20 +294,31 @@ struct IntegrationResult {
 ///    height is in [-below_band, fuse_band]. Its surface normal comes from the depth gradient
 ///    (central differences, one-sided at depth jumps).
 /// 2. Allocation: for each in-band point, the blocks crossed by its ray segment from the depth
-///    where the distance reaches +truncation in front of the surface to truncation (in depth)
-///    behind it, clipped to the voxel band, are allocated.
+///    where the distance reaches +truncation in front of the surface to where it reaches
+///    -truncation / 2 behind it (but at most truncation in depth), clipped to the voxel band,
+///    are allocated.
 /// 3. Update: only allocated blocks are visited, and within them only voxels whose centre lies in
 ///    the voxel band h in [-below_band - trunc, fuse_band + trunc], has camera depth z in
 ///    [min_depth, max_depth] and projects (nearest pixel) into the image. With q the voxel's
 ///    depth difference to the pixel's tangent plane along the viewing direction (d - z on the
 ///    pixel's own ray), sdf = cos(ray, normal) * q: the distance to the tangent plane, in metres.
-///    q < -trunc: untouched (occluded); sdf >= trunc: free space, fused as +trunc (any
-///    measurement carves, in band or not); otherwise fused only when P is in the band. Surfaces
-///    seen at more than 78 deg from their normal only carve (along the optical axis). Near
-///    silhouettes a voxel with sdf > half a voxel is skipped when a depth edge lies nearby in
-///    the image at most one truncation behind it, which removes the silhouette bias of
-///    projective fusion. Fusion is a running average with weight 1 per observation, capped at
-///    max_weight.
+///    q < -trunc or sdf < -trunc / 2: untouched (occluded: how far the object extends behind
+///    its visible surface is unknown, so only half the truncation behind it is fused; a thin
+///    object keeps no wrong inside values near its unseen back face); sdf >= trunc: free
+///    space, fused as +trunc (any measurement carves, in band or not); otherwise fused only when
+///    P is in the band. Surfaces seen at more than 78 deg from their normal only carve (along
+///    the optical axis).
+///    Silhouette guard: pixels on the near side of a depth jump, and pixels of surfaces too
+///    grazing to be fused, are edge pixels (seen but not fused surface points). A voxel with
+///    |sdf| > half a voxel is skipped when the nearest edge pixel lies laterally closer than
+///    min(|sdf|, trunc) to its line of sight (chessboard pixel distance in the image, plus half a
+///    pixel behind the surface, scaled to the voxel's depth) and the edges around its pixel
+///    (8x8-pixel tiles within the truncation's lateral reach) are at most one truncation behind
+///    it. In front, this removes the silhouette bias of projective fusion (a voxel beside an
+///    object, seeing the background, would get the background's distance) while keeping the free
+///    space around small objects observed; behind, it drops "inside" values past an object's far
+///    rim, where the object may end.
+///    Fusion is a running average with weight 1 per observation, capped at max_weight.
 ///
 /// Candidate blocks are the allocated blocks of the frustum's local AABB (clipped to the band and
 /// to the volume's block bounds; enumerated cell by cell or by scanning the blocks, whichever is

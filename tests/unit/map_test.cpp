@@ -64,8 +64,7 @@ TEST(Map, FindsTheTableAndFloorPlanesExactly) {
   for (const auto& ps : m.planes()) EXPECT_EQ(ps.plane.id, &ps - m.planes().data());
 }
 
-// Disabled: projective fusion from an oblique ring gives ~0.74 voxel RMSE (open gap, issue 3).
-TEST(Map, DISABLED_TableTsdfIsWithinHalfAVoxelNearTheSurface) {
+TEST(Map, TableTsdfIsWithinHalfAVoxelNearTheSurface) {
   const Map& m = tableMap();
   const PlaneSdf* table = planeAtHeight(m, 0.75);
   ASSERT_NE(table, nullptr);
@@ -85,8 +84,7 @@ TEST(Map, DISABLED_TableTsdfIsWithinHalfAVoxelNearTheSurface) {
   EXPECT_LT(std::sqrt(se / n), 0.5 * kVoxel);
 }
 
-// Disabled: fused footprints come out ~1 cm wider than the objects (open gap, issue 3).
-TEST(Map, DISABLED_HeightAndObjectMapsHoldTheBoxAndTheCylinder) {
+TEST(Map, HeightAndObjectMapsHoldTheBoxAndTheCylinder) {
   const Map& m = tableMap();
   const PlaneSdf* table = planeAtHeight(m, 0.75);
   ASSERT_NE(table, nullptr);

@@ -419,6 +419,65 @@ TEST(TsdfFusion, BoxOnPlaneRmse) {
   EXPECT_LT(std::abs(top->sdf), 0.5 * vs);
 }
 
+TEST(TsdfFusion, OnlyHalfTheTruncationBehindTheSurfaceIsFused) {
+  // Seen from above, a table top's thickness is unknown: a 3 cm top (4.3 voxels) would get
+  // "inside" values near its unseen underside if the whole truncation (4 voxels) behind the
+  // surface were fused. Flat plane: the tangent-plane distance of a voxel is its height.
+  const Config cfg = testConfig();
+  TsdfVolume vol(cfg);
+  Scene scene;
+  fuseRing(vol, scene, ring(8, 0.8, 0.6, kTarget), cfg);
+  const double half_trunc = 0.5 * vol.truncation();
+  double min_h = kInfD;
+  std::size_t behind = 0;
+  forEachObservedCentre(vol, [&](double x, double y, double h, const TsdfVoxel& v) {
+    if (!scene.inside(x, y)) return;
+    min_h = std::min(min_h, h);
+    if (h < 0.0) {
+      ++behind;
+      EXPECT_LT(std::abs(v.sdf - h), 1e-3) << "at h = " << h;  // exact plane
+    }
+  });
+  EXPECT_GE(min_h, -half_trunc);
+  EXPECT_LT(min_h, -half_trunc + vol.voxelSize());  // the band behind is there: 2 voxels
+  EXPECT_GT(behind, 10000u);
+}
+
+TEST(TsdfFusion, FreeSpaceBesideABoxIsObservedWithItsTrueDistance) {
+  // The silhouette guard must neither leave the free space around a small object unobserved
+  // nor let a fringe of "inside" values grow around it: the voxels 0.5 to 1.5 voxels outside
+  // the box's sides (over its height) are observed, positive, within half a voxel of their true
+  // distance; and nothing more than one voxel outside the box is inside (negative) above the
+  // plane, so its footprint in a height map is exact.
+  const Config cfg = testConfig();
+  TsdfVolume vol(cfg);
+  Scene scene;
+  scene.box = true;
+  fuseRing(vol, scene, ring(12, 0.7, 0.5, kTarget), cfg);
+  const double vs = vol.voxelSize();
+  const double top = scene.box_c.z() + scene.box_half.z();
+  std::size_t beside = 0, observed = 0, fringe = 0;
+  double ss = 0.0;
+  for (int k = 1; (k + 0.5) * vs < top - vs; ++k)
+    for (int j = -20; j <= 20; ++j)
+      for (int i = -20; i <= 20; ++i) {
+        const double x = (i + 0.5) * vs, y = (j + 0.5) * vs, h = (k + 0.5) * vs;
+        const double truth = scene.sdf(x, y, h);
+        const TsdfVoxel* v = vol.voxel(Eigen::Vector3i(i, j, k));
+        const bool seen = v != nullptr && v->weight > 0.0f;
+        if (truth > vs && seen && v->sdf < 0.0f) ++fringe;
+        if (truth < 0.5 * vs || truth > 1.5 * vs || truth >= h) continue;  // beside the sides
+        ++beside;
+        if (!seen) continue;
+        ++observed;
+        ss += (v->sdf - truth) * (v->sdf - truth);
+      }
+  ASSERT_GT(beside, 300u);
+  EXPECT_EQ(observed, beside);
+  EXPECT_LT(std::sqrt(ss / std::max<std::size_t>(observed, 1)) / vs, 0.5);
+  EXPECT_EQ(fringe, 0u);
+}
+
 TEST(TsdfFusion, NothingOutsideTheBandIsAllocatedOrObserved) {
   Config cfg = testConfig();
   TsdfVolume vol(cfg);

@@ -1,0 +1,615 @@
+// The `tabletop` and `room` presets: layout, objects, change scenarios, trajectories and the
+// localisation error, all drawn from one explicitly seeded std::mt19937 in a fixed order.
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <optional>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "planesdf/error.hpp"
+#include "planesdf/sim.hpp"
+#include "world.hpp"
+
+namespace planesdf::sim {
+namespace {
+using detail::kPi;
+using Eigen::Vector2d;
+using Eigen::Vector3d;
+
+/// Uniform numbers from std::mt19937 by our own formulas (the standard distributions differ
+/// between standard libraries; mt19937's output does not).
+class Random {
+ public:
+  explicit Random(std::uint32_t seed) : gen_(seed) {}
+  double uniform(double lo, double hi) {
+    return lo + (hi - lo) * ((static_cast<double>(gen_()) + 0.5) / 4294967296.0);
+  }
+  /// Integer in [lo, hi].
+  int integer(int lo, int hi) {
+    return lo + static_cast<int>(gen_() % static_cast<std::uint32_t>(hi - lo + 1));
+  }
+  template <class T>
+  void shuffle(std::vector<T>& v) {
+    for (std::size_t i = v.size(); i > 1; --i)
+      std::swap(v[i - 1], v[static_cast<std::size_t>(integer(0, static_cast<int>(i) - 1))]);
+  }
+
+ private:
+  std::mt19937 gen_;
+};
+
+constexpr double kGap = 0.03;   ///< free space between two objects' footprints (m)
+constexpr double kEdge = 0.03;  ///< free space between a footprint and its support's edge (m)
+
+const std::vector<ObjectType> kStanding = {
+    ObjectType::Box,       ObjectType::Cylinder, ObjectType::Sphere,
+    ObjectType::Cone,      ObjectType::Torus,    ObjectType::Mug,
+    ObjectType::BookStack, ObjectType::Bottle,   ObjectType::ToyCar};
+const std::vector<ObjectType> kHung = {ObjectType::Box, ObjectType::Cylinder, ObjectType::Torus};
+
+bool isWall(const std::string& support) {
+  return support.rfind("wall", 0) == 0;
+}
+
+/// Smallest height a type is generated with.
+double minHeight(ObjectType t) {
+  switch (t) {
+    case ObjectType::Cylinder:
+    case ObjectType::Sphere:
+      return 0.06;
+    case ObjectType::Cone:
+    case ObjectType::Mug:
+      return 0.08;
+    case ObjectType::Bottle:
+      return 0.18;
+    default:
+      return 0.04;
+  }
+}
+
+/// A size for a standing object of type `t` at most `max_h` tall (4 to 35 cm).
+Vector3d standingSize(Random& r, ObjectType t, double max_h) {
+  const auto h = [&](double lo, double hi) { return r.uniform(lo, std::min(hi, max_h)); };
+  switch (t) {
+    case ObjectType::Box:
+      return {r.uniform(0.06, 0.25), r.uniform(0.06, 0.25), h(0.04, 0.30)};
+    case ObjectType::Cylinder: {
+      const double d = r.uniform(0.05, 0.15);
+      return {d, d, h(0.06, 0.30)};
+    }
+    case ObjectType::Sphere: {
+      const double d = h(0.06, 0.20);
+      return {d, d, d};
+    }
+    case ObjectType::Cone: {
+      const double d = r.uniform(0.08, 0.20);
+      return {d, d, h(0.08, 0.30)};
+    }
+    case ObjectType::Torus: {
+      const double d = r.uniform(0.12, 0.25);
+      return {d, d, h(0.04, std::min(0.08, d / 2.5))};
+    }
+    case ObjectType::Mug: {
+      const double d = r.uniform(0.07, 0.10);
+      return {d + r.uniform(0.025, 0.04), d, h(0.08, 0.12)};
+    }
+    case ObjectType::BookStack:
+      return {r.uniform(0.15, 0.28), r.uniform(0.11, 0.20), h(0.04, 0.15)};
+    case ObjectType::Bottle: {
+      const double d = r.uniform(0.06, 0.10);
+      return {d, d, h(0.18, 0.35)};
+    }
+    case ObjectType::ToyCar: {
+      const double length = r.uniform(0.10, 0.25);
+      return {length, r.uniform(0.45, 0.6) * length, h(0.04, 0.10)};
+    }
+  }
+  return {0.1, 0.1, 0.1};
+}
+
+/// A size for an object hung on a wall (z = how far it sticks out).
+Vector3d hungSize(Random& r, ObjectType t) {
+  switch (t) {
+    case ObjectType::Cylinder: {
+      const double d = r.uniform(0.20, 0.32);
+      return {d, d, r.uniform(0.04, 0.07)};
+    }
+    case ObjectType::Torus: {
+      const double d = r.uniform(0.25, 0.35);
+      return {d, d, r.uniform(0.04, 0.07)};
+    }
+    default:
+      return {r.uniform(0.20, 0.40), r.uniform(0.15, 0.35), r.uniform(0.04, 0.12)};
+  }
+}
+
+double footprintRadius(const Vector3d& size) {
+  return 0.5 * std::hypot(size.x(), size.y());
+}
+
+/// Where objects may go on a support plane (in its frame), and how.
+struct Spot {
+  SupportPlane plane;
+  Eigen::AlignedBox2d region;  ///< allowed base centres before the footprint margins
+  bool hung = false;           ///< wall: upright objects, no yaw
+};
+
+class Builder {
+ public:
+  Builder(Scene& scene, Random& random, std::string label)
+      : scene_(scene), r_(random), label_(std::move(label)) {}
+
+  void addSpot(const std::string& support, std::optional<Eigen::AlignedBox2d> region = {}) {
+    for (const SupportPlane& p : supportPlanes(scene_))
+      if (p.name == support) {
+        Spot s;
+        s.plane = p;
+        s.region = region ? *region : Eigen::AlignedBox2d(-p.half_extent, p.half_extent);
+        s.hung = isWall(support);
+        spots_.push_back(s);
+        return;
+      }
+    throw Error("--scene", label_ + ": internal error: no support plane '" + support + "'");
+  }
+
+  const Spot* spot(const std::string& support) const {
+    for (const Spot& s : spots_)
+      if (s.plane.name == support) return &s;
+    return nullptr;
+  }
+
+  /// Support-plane coordinates of an object's base centre.
+  static Vector2d planeXY(const Spot& s, const Object& o) {
+    return (s.plane.frame.inverse(Eigen::Isometry) * o.position).head<2>();
+  }
+
+  /// True when a footprint of `radius` at `xy` on `s` is inside its region and clear of the
+  /// objects of `objects` on the same support (except `skip`).
+  static bool isFree(const Spot& s, const Vector2d& xy, double radius,
+                     const std::vector<Object>& objects, const std::set<int>& skip) {
+    const Vector2d lo = s.region.min().array() + radius + kEdge;
+    const Vector2d hi = s.region.max().array() - radius - kEdge;
+    if ((xy.array() < lo.array()).any() || (xy.array() > hi.array()).any()) return false;
+    for (const Object& o : objects) {
+      if (o.support != s.plane.name || skip.count(o.id)) continue;
+      if ((planeXY(s, o) - xy).norm() < radius + footprintRadius(o.size) + kGap) return false;
+    }
+    return true;
+  }
+
+  /// A random free base centre for a footprint of `radius`, also satisfying `accept`.
+  std::optional<Vector2d> findPlace(const Spot& s, double radius,
+                                    const std::vector<Object>& objects, const std::set<int>& skip,
+                                    const std::function<bool(const Vector2d&)>& accept = {}) {
+    const Vector2d lo = s.region.min().array() + radius + kEdge;
+    const Vector2d hi = s.region.max().array() - radius - kEdge;
+    if ((lo.array() > hi.array()).any()) return std::nullopt;
+    for (int attempt = 0; attempt < 400; ++attempt) {
+      const Vector2d xy(r_.uniform(lo.x(), hi.x()), r_.uniform(lo.y(), hi.y()));
+      if ((!accept || accept(xy)) && isFree(s, xy, radius, objects, skip)) return xy;
+    }
+    return std::nullopt;
+  }
+
+  static void placeAt(Object& o, const Spot& s, const Vector2d& xy, double yaw_deg) {
+    o.support = s.plane.name;
+    o.position = s.plane.frame * Vector3d(xy.x(), xy.y(), 0.0);
+    const Eigen::Matrix3d R =
+        s.plane.frame.linear() *
+        Eigen::AngleAxisd(detail::deg2rad(yaw_deg), Vector3d::UnitZ()).toRotationMatrix();
+    o.orientation = Eigen::Quaterniond(R).normalized();
+  }
+
+  /// A random type and size that fits on `s` (clearance), optionally not `avoid`.
+  std::pair<ObjectType, Vector3d> randomShape(const Spot& s, std::optional<ObjectType> avoid = {}) {
+    std::vector<ObjectType> types;
+    const double max_h = std::min(0.35, s.plane.clearance - 0.03);
+    for (const ObjectType t : s.hung ? kHung : kStanding)
+      if (t != avoid && (s.hung || minHeight(t) <= max_h)) types.push_back(t);
+    if (types.empty())
+      throw Error("--scene", label_ + ": no object fits on '" + s.plane.name + "'");
+    const ObjectType t =
+        types[static_cast<std::size_t>(r_.integer(0, static_cast<int>(types.size()) - 1))];
+    return {t, s.hung ? hungSize(r_, t) : standingSize(r_, t, max_h)};
+  }
+
+  /// Adds a new random object on `support` to `objects`; false when there is no room.
+  bool addObject(std::vector<Object>& objects, const std::string& support, int id) {
+    const Spot& s = *spot(support);
+    for (int attempt = 0; attempt < 20; ++attempt) {
+      Object o;
+      o.id = id;
+      std::tie(o.type, o.size) = randomShape(s);
+      const auto xy = findPlace(s, footprintRadius(o.size), objects, {});
+      if (!xy) continue;
+      placeAt(o, s, *xy, s.hung ? 0.0 : r_.uniform(0.0, 360.0));
+      objects.push_back(o);
+      return true;
+    }
+    return false;
+  }
+
+  std::vector<Spot>& spots() { return spots_; }
+
+ private:
+  Scene& scene_;
+  Random& r_;
+  std::string label_;
+  std::vector<Spot> spots_;
+};
+
+int nextId(const Scene& s) {
+  int id = 0;
+  for (const Session* session : {&s.reference, &s.current})
+    for (const Object& o : session->objects) id = std::max(id, o.id);
+  return id + 1;
+}
+
+std::vector<ChangeKind> defaultChanges(const std::string& name) {
+  if (name == "room")
+    return {ChangeKind::Add, ChangeKind::Remove, ChangeKind::Move, ChangeKind::Replace};
+  return {ChangeKind::Add, ChangeKind::Remove, ChangeKind::Move};
+}
+
+/// Makes the changes: current = reference objects, then each change on untouched objects.
+void applyChanges(Scene& scene, Builder& b, Random& r, const std::vector<ChangeKind>& kinds,
+                  const std::vector<std::string>& add_supports, const std::string& label) {
+  std::vector<Object>& cur = scene.current.objects;
+  cur = scene.reference.objects;
+  std::set<int> touched;
+  // New places must be free in both sessions, so that no change lands where another one left
+  // (a moved object on the spot of a removed one would be a replacement).
+  const auto occupied = [&] {
+    std::vector<Object> all = cur;
+    all.insert(all.end(), scene.reference.objects.begin(), scene.reference.objects.end());
+    return all;
+  };
+  const auto fail = [&](ChangeKind k) {
+    throw Error("--scene", label + ": cannot make the '" + std::string(toString(k)) +
+                               "' change (no untouched object or no free place left)");
+  };
+  const auto untouched = [&](bool horizontal_only) {
+    std::vector<int> idx;
+    for (std::size_t i = 0; i < cur.size(); ++i)
+      if (!touched.count(cur[i].id) && (!horizontal_only || !isWall(cur[i].support)))
+        idx.push_back(static_cast<int>(i));
+    r.shuffle(idx);
+    return idx;
+  };
+
+  for (const ChangeKind kind : kinds) {
+    Change change;
+    change.kind = kind;
+    bool done = kind == ChangeKind::None;
+    switch (kind) {
+      case ChangeKind::None:
+        break;
+      case ChangeKind::Add: {
+        std::vector<std::string> supports = add_supports;
+        r.shuffle(supports);
+        const int id = nextId(scene);
+        for (const std::string& sp : supports) {
+          std::vector<Object> all = occupied();
+          if (b.addObject(all, sp, id)) {
+            cur.push_back(all.back());
+            done = true;
+            touched.insert(id);
+            change.current_ids = {id};
+            break;
+          }
+        }
+        break;
+      }
+      case ChangeKind::Remove: {
+        const std::vector<int> idx = untouched(false);
+        if (idx.empty()) break;
+        const Object o = cur[static_cast<std::size_t>(idx.front())];
+        cur.erase(cur.begin() + idx.front());
+        touched.insert(o.id);
+        change.reference_ids = {o.id};
+        done = true;
+        break;
+      }
+      case ChangeKind::Move:
+      case ChangeKind::SmallMove: {
+        for (const int i : untouched(false)) {
+          Object& o = cur[static_cast<std::size_t>(i)];
+          const Spot& s = *b.spot(o.support);
+          const Vector2d old = Builder::planeXY(s, o);
+          const double radius = footprintRadius(o.size);
+          std::optional<Vector2d> xy;
+          if (kind == ChangeKind::Move) {
+            xy = b.findPlace(s, radius, occupied(), {o.id},
+                             [&](const Vector2d& p) { return (p - old).norm() >= 0.10; });
+          } else {
+            const double a0 = r.uniform(0.0, 2.0 * kPi);
+            for (int k = 0; k < 16 && !xy; ++k) {
+              const double a = a0 + k * (2.0 * kPi / 16);
+              const Vector2d p = old + 0.03 * Vector2d(std::cos(a), std::sin(a));
+              if (Builder::isFree(s, p, radius, occupied(), {o.id})) xy = p;
+            }
+          }
+          if (!xy) continue;
+          if (kind == ChangeKind::Move) {
+            Builder::placeAt(o, s, *xy, s.hung ? 0.0 : r.uniform(0.0, 360.0));
+          } else {
+            o.position = s.plane.frame * Vector3d(xy->x(), xy->y(), 0.0);  // same orientation
+          }
+          touched.insert(o.id);
+          change.reference_ids = change.current_ids = {o.id};
+          done = true;
+          break;
+        }
+        break;
+      }
+      case ChangeKind::Swap: {
+        const std::vector<int> idx = untouched(true);
+        for (std::size_t x = 0; x < idx.size() && !done; ++x)
+          for (std::size_t y = x + 1; y < idx.size() && !done; ++y) {
+            Object& a = cur[static_cast<std::size_t>(idx[x])];
+            Object& c = cur[static_cast<std::size_t>(idx[y])];
+            if (a.type == c.type && a.size == c.size) continue;
+            const Spot& sa = *b.spot(a.support);
+            const Spot& sc = *b.spot(c.support);
+            const std::vector<Object> all = occupied();
+            const bool fits = a.size.z() <= sc.plane.clearance - 0.03 &&
+                              c.size.z() <= sa.plane.clearance - 0.03 &&
+                              Builder::isFree(sc, Builder::planeXY(sc, c), footprintRadius(a.size),
+                                              all, {a.id, c.id}) &&
+                              Builder::isFree(sa, Builder::planeXY(sa, a), footprintRadius(c.size),
+                                              all, {a.id, c.id});
+            if (!fits) continue;
+            std::swap(a.position, c.position);
+            std::swap(a.support, c.support);
+            touched.insert(a.id);
+            touched.insert(c.id);
+            change.reference_ids = change.current_ids = {a.id, c.id};
+            done = true;
+          }
+        break;
+      }
+      case ChangeKind::Replace: {
+        const int id = nextId(scene);
+        for (const int i : untouched(false)) {
+          const Object old = cur[static_cast<std::size_t>(i)];
+          const Spot& s = *b.spot(old.support);
+          for (int attempt = 0; attempt < 30 && !done; ++attempt) {
+            Object o = old;
+            o.id = id;
+            std::tie(o.type, o.size) = b.randomShape(s, old.type);
+            if (!Builder::isFree(s, Builder::planeXY(s, old), footprintRadius(o.size), occupied(),
+                                 {old.id}))
+              continue;
+            cur[static_cast<std::size_t>(i)] = o;
+            touched.insert(old.id);
+            touched.insert(id);
+            change.reference_ids = {old.id};
+            change.current_ids = {id};
+            done = true;
+          }
+          if (done) break;
+        }
+        break;
+      }
+    }
+    if (!done) fail(kind);
+    scene.changes.push_back(change);
+  }
+  std::sort(cur.begin(), cur.end(), [](const Object& a, const Object& c) { return a.id < c.id; });
+}
+
+/// Azimuth (deg) around `center` of the changed objects on `support`, if any.
+std::optional<double> changeAzimuth(const Scene& scene, const std::string& support,
+                                    const Vector2d& center) {
+  const ChangedIds changed = changedObjects(scene);
+  Vector2d sum = Vector2d::Zero();
+  int n = 0;
+  for (const auto& [session, ids] : {std::pair{&scene.reference, &changed.reference},
+                                     std::pair{&scene.current, &changed.current}})
+    for (const Object& o : session->objects)
+      if (o.support == support && std::count(ids->begin(), ids->end(), o.id)) {
+        sum += o.position.head<2>();
+        ++n;
+      }
+  if (n == 0) return std::nullopt;
+  const Vector2d d = sum / n - center;
+  if (d.norm() < 0.01) return std::nullopt;
+  return std::atan2(d.y(), d.x()) * 180.0 / kPi;
+}
+
+Orbit tableOrbit(Random& r, const Table& t, int frames, double coverage,
+                 std::optional<double> focus_deg) {
+  Orbit o;
+  const double h = t.size.z();
+  o.center = t.center;
+  o.radius = 0.5 * std::hypot(t.size.x(), t.size.y()) + r.uniform(0.40, 0.55);
+  o.z_min = h + r.uniform(0.30, 0.40);
+  o.z_max = h + r.uniform(0.60, 0.80);
+  o.height_waves = r.integer(1, 3);
+  o.target = Vector3d(t.center.x() + r.uniform(-0.05, 0.05), t.center.y() + r.uniform(-0.05, 0.05),
+                      h + 0.05);
+  const double start = r.uniform(0.0, 360.0);
+  if (coverage >= 1.0) {
+    o.start_deg = start;
+    o.end_deg = start + 360.0;
+  } else {
+    const double mid = focus_deg ? *focus_deg : start;
+    o.start_deg = mid - 180.0 * coverage;
+    o.end_deg = mid + 180.0 * coverage;
+  }
+  o.frames = frames;
+  return o;
+}
+
+void checkOptions(const std::string& name, const PresetOptions& opt) {
+  const auto bad = [&](const std::string& what) { throw Error("--scene", name + ": " + what); };
+  if (opt.frames < 0 || opt.frames > 5000) bad("frames must be in [0, 5000]");
+  for (const double c : {opt.reference_coverage, opt.current_coverage})
+    if (!(c > 0.0 && c <= 1.0)) bad("coverage must be in (0, 1]");
+  if (!(opt.localisation_translation >= 0.0 && opt.localisation_translation <= 1.0))
+    bad("localisation_translation must be in [0, 1] m");
+  if (!(opt.localisation_rotation_deg >= 0.0 && opt.localisation_rotation_deg <= 45.0))
+    bad("localisation_rotation_deg must be in [0, 45] degrees");
+}
+
+Scene makeTabletop(std::uint32_t seed, const PresetOptions& opt) {
+  Random r(seed);
+  Scene s;
+  s.name = "tabletop";
+  s.seed = seed;
+  s.room.size = Vector2d(5.0, 5.0);
+  s.room.walls = false;
+  Table t;
+  t.id = 1;
+  t.center = Vector2d(r.uniform(-0.1, 0.1), r.uniform(-0.1, 0.1));
+  t.yaw_deg = r.uniform(-90.0, 90.0);
+  t.size = Vector3d(r.uniform(1.0, 1.4), r.uniform(0.7, 0.9), r.uniform(0.70, 0.78));
+  s.tables.push_back(t);
+
+  const std::string label = "tabletop seed " + std::to_string(seed);
+  Builder b(s, r, label);
+  b.addSpot("table1");
+  const int n = r.integer(5, 7);
+  for (int i = 0; i < n; ++i)
+    if (!b.addObject(s.reference.objects, "table1", i + 1))
+      throw Error("--scene", label + ": no room for object " + std::to_string(i + 1));
+  applyChanges(s, b, r, opt.changes.empty() ? defaultChanges("tabletop") : opt.changes, {"table1"},
+               label);
+
+  const int frames = opt.frames > 0 ? opt.frames : 30;
+  const std::optional<double> focus = changeAzimuth(s, "table1", t.center);
+  s.reference.trajectory = {tableOrbit(r, t, frames, opt.reference_coverage, focus)};
+  s.current.trajectory = {tableOrbit(r, t, frames, opt.current_coverage, focus)};
+  const double a = r.uniform(0.0, 2.0 * kPi);
+  LocalisationError& e = s.current.localisation_error;
+  e.translation = opt.localisation_translation * Vector3d(std::cos(a), std::sin(a), 0.0);
+  e.rotation_deg =
+      Vector3d(0.0, 0.0, (r.integer(0, 1) ? 1.0 : -1.0) * opt.localisation_rotation_deg);
+  e.pivot = Vector3d(t.center.x(), t.center.y(), t.size.z());
+  return s;
+}
+
+Scene makeRoom(std::uint32_t seed, const PresetOptions& opt) {
+  Random r(seed);
+  Scene s;
+  s.name = "room";
+  s.seed = seed;
+  const int n_tables = r.integer(1, 3);
+  const double X = std::max(4.5, 2.5 * (n_tables - 1) + 3.6), Y = 5.0;
+  s.room.size = Vector2d(X, Y);
+  s.room.walls = true;
+  s.room.wall_height = 2.5;
+  for (int k = 0; k < n_tables; ++k) {
+    Table t;
+    t.id = k + 1;
+    t.center = Vector2d((k - 0.5 * (n_tables - 1)) * 2.5 + r.uniform(-0.1, 0.1),
+                        -0.5 + r.uniform(-0.15, 0.15));
+    t.yaw_deg = r.uniform(-20.0, 20.0);
+    t.size = Vector3d(r.uniform(0.9, 1.3), r.uniform(0.6, 0.85), r.uniform(0.70, 0.78));
+    s.tables.push_back(t);
+  }
+  Shelf sh;
+  sh.id = 1;
+  sh.size = Vector3d(r.uniform(0.8, 1.1), 0.32, r.uniform(1.5, 1.85));
+  sh.boards = r.integer(3, 4);
+  sh.center = Vector2d(r.uniform(-X / 2 + sh.size.x() / 2 + 0.3, X / 2 - sh.size.x() / 2 - 0.6),
+                       Y / 2 - sh.size.y() / 2 - 0.005);
+  s.shelves.push_back(sh);
+
+  const std::string label = "room seed " + std::to_string(seed);
+  Builder b(s, r, label);
+  std::vector<std::string> add_supports;
+  for (const Table& t : s.tables) {
+    b.addSpot("table" + std::to_string(t.id));
+    add_supports.push_back("table" + std::to_string(t.id));
+  }
+  for (int k = 2; k <= sh.boards; ++k) {
+    const std::string name = "shelf1.board" + std::to_string(k);
+    b.addSpot(name);
+    add_supports.push_back(name);
+  }
+  const double H = s.room.wall_height;
+  b.addSpot("wall+x", Eigen::AlignedBox2d(Vector2d(-1.0, 1.2 - H / 2), Vector2d(1.0, 1.8 - H / 2)));
+
+  int id = 1;
+  const auto add = [&](const std::string& support) {
+    if (!b.addObject(s.reference.objects, support, id))
+      throw Error("--scene", label + ": no room for object " + std::to_string(id));
+    ++id;
+  };
+  for (const Table& t : s.tables) {
+    const int n = r.integer(3, 5);
+    for (int i = 0; i < n; ++i) add("table" + std::to_string(t.id));
+  }
+  for (int k = 2; k <= sh.boards; ++k) add("shelf1.board" + std::to_string(k));
+  add("wall+x");
+  applyChanges(s, b, r, opt.changes.empty() ? defaultChanges("room") : opt.changes, add_supports,
+               label);
+
+  // Frames: 14 per table, 12 for the shelf, 6 for the wall object, scaled to opt.frames.
+  const double total = 14.0 * n_tables + 18.0;
+  const auto frames = [&](int f) {
+    return opt.frames > 0 ? std::max(1, static_cast<int>(std::lround(f * opt.frames / total))) : f;
+  };
+  const Object& hung = *std::find_if(s.reference.objects.begin(), s.reference.objects.end(),
+                                     [](const Object& o) { return isWall(o.support); });
+  for (Session* session : {&s.reference, &s.current}) {
+    const double coverage = session == &s.reference ? opt.reference_coverage : opt.current_coverage;
+    for (const Table& t : s.tables) {
+      const std::string support = "table" + std::to_string(t.id);
+      session->trajectory.push_back(
+          tableOrbit(r, t, frames(14), coverage, changeAzimuth(s, support, t.center)));
+    }
+    Orbit shelf;
+    const double front = sh.center.y() - sh.size.y() / 2;
+    shelf.center = Vector2d(sh.center.x(), front);
+    shelf.radius = r.uniform(1.3, 1.5);
+    shelf.start_deg = r.uniform(230.0, 245.0);
+    shelf.end_deg = r.uniform(295.0, 310.0);
+    shelf.z_min = r.uniform(0.75, 0.9);
+    shelf.z_max = r.uniform(1.45, 1.6);
+    shelf.height_waves = r.integer(1, 2);
+    shelf.target = Vector3d(sh.center.x(), sh.center.y(), sh.size.z() / 2);
+    shelf.target_follow = 0.6;
+    shelf.frames = frames(12);
+    session->trajectory.push_back(shelf);
+    Orbit wall;
+    wall.center = Vector2d(X / 2, hung.position.y());
+    wall.radius = r.uniform(1.2, 1.4);
+    wall.start_deg = r.uniform(145.0, 160.0);
+    wall.end_deg = r.uniform(200.0, 215.0);
+    wall.z_min = r.uniform(1.1, 1.3);
+    wall.z_max = r.uniform(1.5, 1.7);
+    wall.height_waves = 1;
+    wall.target = Vector3d(X / 2, hung.position.y(), hung.position.z());
+    wall.frames = frames(6);
+    session->trajectory.push_back(wall);
+  }
+  const double a = r.uniform(0.0, 2.0 * kPi);
+  LocalisationError& e = s.current.localisation_error;
+  e.translation = opt.localisation_translation * Vector3d(std::cos(a), std::sin(a), 0.0);
+  e.rotation_deg =
+      Vector3d(0.0, 0.0, (r.integer(0, 1) ? 1.0 : -1.0) * opt.localisation_rotation_deg);
+  e.pivot = Vector3d::Zero();
+  return s;
+}
+
+}  // namespace
+
+Scene makePreset(const std::string& name, std::uint32_t seed, const PresetOptions& options) {
+  checkOptions(name, options);
+  Scene s;
+  if (name == "tabletop")
+    s = makeTabletop(seed, options);
+  else if (name == "room")
+    s = makeRoom(seed, options);
+  else
+    throw Error("--scene", "unknown preset '" + name + "' (expected tabletop or room)");
+  validateScene(s, "--scene " + name + " seed " + std::to_string(seed));
+  return s;
+}
+
+}  // namespace planesdf::sim

@@ -1,0 +1,346 @@
+// A whole simulation: both sessions rendered (OpenMP over frames), the whole-scene clouds
+// (centroid per kVoxel cell), the ground-truth labels, and the `planesdf simulate` folder.
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <set>
+#include <string>
+#include <system_error>
+#include <vector>
+
+#include "planesdf/error.hpp"
+#include "planesdf/io/ply.hpp"
+#include "planesdf/io/tum.hpp"
+#include "planesdf/sim.hpp"
+#include "world.hpp"
+
+namespace planesdf::sim {
+namespace {
+namespace fs = std::filesystem;
+using Eigen::Vector3d;
+
+/// A cell is part of a noise shell when a face neighbour holds this many times its points.
+constexpr double kShellRatio = 1.5;
+/// Points measured at most this deep go into kVoxel cells; each doubling of the depth beyond it
+/// doubles the cell (a sensor pixel is 3.8 mm wide at 2 m, 7.6 mm at 4 m).
+constexpr double kFineRange = 1.5;
+constexpr int kLevels = 4;
+
+// ---- cells --------------------------------------------------------------------------------------
+
+constexpr int kAxisBits = 20;
+constexpr std::int64_t kAxisOffset = std::int64_t{1} << (kAxisBits - 1);  // +-1.8 km at 3.5 mm
+constexpr std::uint64_t kAxisMask = (std::uint64_t{1} << kAxisBits) - 1;
+
+struct Cell {
+  int level = 0;
+  std::int64_t x = 0, y = 0, z = 0;
+};
+
+std::uint64_t packCell(const Cell& c) {
+  const auto axis = [](std::int64_t v) {
+    return static_cast<std::uint64_t>(
+        std::clamp<std::int64_t>(v + kAxisOffset, 1, static_cast<std::int64_t>(kAxisMask) - 1));
+  };
+  return (static_cast<std::uint64_t>(c.level) << (3 * kAxisBits)) | (axis(c.x) << (2 * kAxisBits)) |
+         (axis(c.y) << kAxisBits) | axis(c.z);
+}
+
+Cell unpackCell(std::uint64_t key) {
+  const auto axis = [](std::uint64_t v) {
+    return static_cast<std::int64_t>(v & kAxisMask) - kAxisOffset;
+  };
+  return {static_cast<int>(key >> (3 * kAxisBits)), axis(key >> (2 * kAxisBits)),
+          axis(key >> kAxisBits), axis(key)};
+}
+
+std::int64_t floorDiv(std::int64_t a, std::int64_t b) {
+  const std::int64_t q = a / b;
+  return (a % b != 0 && a < 0) ? q - 1 : q;
+}
+
+/// The cell of world point `p` measured at depth `depth`.
+Cell cellOf(const Vector3d& p, double depth) {
+  int level = 0;
+  for (double range = kFineRange; depth > range && level + 1 < kLevels; range *= 2.0) ++level;
+  // The grid is shifted by half a fine cell, so that the fine cells are centred on round
+  // coordinates (the floor z = 0) instead of having a cell boundary there (a noisy surface on a
+  // boundary splits into two layers of centroids, each off by about the noise).
+  const double size = kVoxel * static_cast<double>(1 << level);
+  const Vector3d q = (p.array() + 0.5 * kVoxel) / size;
+  return {level, static_cast<std::int64_t>(std::floor(q.x())),
+          static_cast<std::int64_t>(std::floor(q.y())),
+          static_cast<std::int64_t>(std::floor(q.z()))};
+}
+
+/// Open-addressing hash map from cell keys to dense indices 0, 1, 2, ... in insertion order.
+class KeyIndex {
+ public:
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+
+  explicit KeyIndex(std::size_t expected = 1024) {
+    std::size_t cap = 1024;
+    while (cap < 2 * expected) cap *= 2;
+    keys_.assign(cap, kEmpty);
+    index_.assign(cap, kNone);
+  }
+
+  std::size_t size() const { return count_; }
+
+  /// The index of `key`, inserting it (as index size()) when new.
+  std::uint32_t insert(std::uint64_t key) {
+    if (2 * (count_ + 1) > keys_.size()) grow();
+    const std::size_t i = slot(key);
+    if (keys_[i] == kEmpty) {
+      keys_[i] = key;
+      index_[i] = static_cast<std::uint32_t>(count_++);
+    }
+    return index_[i];
+  }
+
+  std::uint32_t find(std::uint64_t key) const { return index_[slot(key)]; }
+
+ private:
+  static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
+
+  std::size_t slot(std::uint64_t key) const {
+    const std::uint64_t h = key * 0x9E3779B97F4A7C15ull;
+    std::size_t i = static_cast<std::size_t>(h >> 24) & (keys_.size() - 1);
+    while (keys_[i] != kEmpty && keys_[i] != key) i = (i + 1) & (keys_.size() - 1);
+    return i;
+  }
+
+  void grow() {
+    const std::vector<std::uint64_t> old_keys = std::move(keys_);
+    const std::vector<std::uint32_t> old_index = std::move(index_);
+    keys_.assign(old_keys.size() * 2, kEmpty);
+    index_.assign(old_keys.size() * 2, kNone);
+    for (std::size_t j = 0; j < old_keys.size(); ++j)
+      if (old_keys[j] != kEmpty) {
+        const std::size_t i = slot(old_keys[j]);
+        keys_[i] = old_keys[j];
+        index_[i] = old_index[j];
+      }
+  }
+
+  std::vector<std::uint64_t> keys_;
+  std::vector<std::uint32_t> index_;
+  std::size_t count_ = 0;
+};
+
+/// The sum and count of the points of each cell.
+class CellAccumulator {
+ public:
+  explicit CellAccumulator(std::size_t expected) : index_(expected) {}
+
+  void add(std::uint64_t key, const Vector3d& sum, std::uint32_t count) {
+    const std::uint32_t i = index_.insert(key);
+    if (i == keys_.size()) {
+      keys_.push_back(key);
+      sums_.push_back(Vector3d::Zero());
+      counts_.push_back(0);
+    }
+    sums_[i] += sum;
+    counts_[i] += count;
+  }
+
+  /// Adds all cells of `other` (in its insertion order, so the sums are reproducible).
+  void merge(const CellAccumulator& other) {
+    for (std::size_t i = 0; i < other.keys_.size(); ++i)
+      add(other.keys_[i], other.sums_[i], other.counts_[i]);
+  }
+
+  /// The centroids, ordered by cell key, of the cells that remain after
+  ///  - dropping a cell when a cell of a finer level lies inside it (the surface was seen closer),
+  ///  - dropping a cell of a noise shell: a face neighbour of its level holds more than
+  ///    kShellRatio times its points (noise spreads a surface over a few cells across it; the
+  ///    densest carry the surface).
+  std::vector<Vector3d> centroids(int threads) const {
+    KeyIndex covered(keys_.size());
+    for (const std::uint64_t key : keys_) {
+      const Cell c = unpackCell(key);
+      for (int level = c.level + 1; level < kLevels; ++level) {
+        const std::int64_t f = std::int64_t{1} << (level - c.level);
+        const std::size_t before = covered.size();
+        covered.insert(packCell({level, floorDiv(c.x, f), floorDiv(c.y, f), floorDiv(c.z, f)}));
+        if (covered.size() == before) break;  // already there, and so are its ancestors
+      }
+    }
+    const auto count = [&](std::uint64_t key) {
+      const std::uint32_t i = index_.find(key);
+      return i == KeyIndex::kNone ? 0u : counts_[i];
+    };
+    constexpr std::uint64_t kSteps[3] = {std::uint64_t{1} << (2 * kAxisBits),
+                                         std::uint64_t{1} << kAxisBits, 1};
+    std::vector<std::uint8_t> keep(keys_.size(), 0);
+    const std::int64_t n = static_cast<std::int64_t>(keys_.size());
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static)
+    for (std::int64_t j = 0; j < n; ++j) {
+      const auto i = static_cast<std::size_t>(j);
+      if (covered.find(keys_[i]) != KeyIndex::kNone) continue;
+      const double limit = kShellRatio * counts_[i];
+      bool shell = false;
+      for (const std::uint64_t step : kSteps)
+        shell = shell || count(keys_[i] + step) > limit || count(keys_[i] - step) > limit;
+      keep[i] = shell ? 0 : 1;
+    }
+    std::vector<std::uint32_t> kept;
+    for (std::size_t i = 0; i < keys_.size(); ++i)
+      if (keep[i]) kept.push_back(static_cast<std::uint32_t>(i));
+    std::sort(kept.begin(), kept.end(),
+              [&](std::uint32_t a, std::uint32_t b) { return keys_[a] < keys_[b]; });
+    std::vector<Vector3d> out;
+    out.reserve(kept.size());
+    for (const std::uint32_t i : kept) out.push_back(sums_[i] / counts_[i]);
+    return out;
+  }
+
+ private:
+  KeyIndex index_;
+  std::vector<std::uint64_t> keys_;
+  std::vector<Vector3d> sums_;
+  std::vector<std::uint32_t> counts_;
+};
+
+double secondsSince(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+std::string fixed(double v, int decimals) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
+  return buf;
+}
+
+SessionData simulateSession(const Scene& scene, int index, const std::vector<int>& changed_ids,
+                            int threads, const SimulateOptions& options) {
+  const Session& session = index == 0 ? scene.reference : scene.current;
+  const std::string label = index == 0 ? "reference" : "current";
+  const auto report = [&](const std::string& msg) {
+    if (options.progress) options.progress(label + ": " + msg);
+  };
+  const detail::World world(sessionPrimitives(scene, session));
+  SessionData data;
+  data.true_poses = trajectoryPoses(session.trajectory);
+  const Pose E = localisationErrorPose(session.localisation_error);
+  const int n = static_cast<int>(data.true_poses.size());
+  data.frames.resize(static_cast<std::size_t>(n));
+
+  auto t0 = std::chrono::steady_clock::now();
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 1)
+  for (int i = 0; i < n; ++i) {
+    const std::uint64_t seed = (std::uint64_t{scene.seed} << 32) |
+                               (static_cast<std::uint64_t>(index) << 24) |
+                               static_cast<std::uint64_t>(i);
+    DepthFrame f = detail::renderFrame(world, scene.sensor,
+                                       data.true_poses[static_cast<std::size_t>(i)], seed);
+    f.timestamp = i / scene.sensor.frame_rate;
+    data.frames[static_cast<std::size_t>(i)] = std::move(f);
+  }
+  for (const Pose& T : data.true_poses) data.reported_poses.push_back(E * T);
+  report("rendered " + std::to_string(n) + " frames in " + fixed(secondsSince(t0), 1) + " s");
+
+  // Whole-scene cloud: every valid pixel in the world (true poses), centroid per cell.
+  t0 = std::chrono::steady_clock::now();
+  const Intrinsics& K = scene.sensor.intrinsics;
+  // Frames are binned in parallel, a batch of `threads` frames at a time, and merged in frame
+  // order, so the sums (and the output) do not depend on the thread count.
+  CellAccumulator cells(static_cast<std::size_t>(n) * 20000);
+  for (int batch = 0; batch < n; batch += threads) {
+    const int count = std::min(threads, n - batch);
+    std::vector<CellAccumulator> partial(
+        static_cast<std::size_t>(count),
+        CellAccumulator(static_cast<std::size_t>(K.width) * K.height / 2));
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static, 1)
+    for (int k = 0; k < count; ++k) {
+      const DepthFrame& f = data.frames[static_cast<std::size_t>(batch + k)];
+      const Pose& T = data.true_poses[static_cast<std::size_t>(batch + k)];
+      CellAccumulator& acc = partial[static_cast<std::size_t>(k)];
+      for (int v = 0; v < K.height; ++v)
+        for (int u = 0; u < K.width; ++u) {
+          const float z = f.at(u, v);
+          if (!DepthFrame::isValidDepth(z)) continue;
+          const Vector3d pc((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+          const Vector3d pw = T * pc;
+          acc.add(packCell(cellOf(pw, z)), pw, 1);
+        }
+    }
+    for (const CellAccumulator& acc : partial) cells.merge(acc);
+  }
+  const std::vector<Vector3d> points = cells.centroids(threads);
+
+  // Ground truth: a point is on a changed object when that object's surface is the nearest one
+  // and within kLabelDistance. Only points that near a changed object need the whole scene.
+  const std::set<int> ids(changed_ids.begin(), changed_ids.end());
+  std::vector<Primitive> changed_prims;
+  for (const Object& o : session.objects)
+    if (ids.count(o.id)) {
+      const std::vector<Primitive> parts = objectPrimitives(o);
+      changed_prims.insert(changed_prims.end(), parts.begin(), parts.end());
+    }
+  const detail::World changed_world(changed_prims);
+  const std::int64_t m = static_cast<std::int64_t>(points.size());
+  std::vector<int> owner(points.size(), 0);
+  std::vector<double> dist(points.size(), detail::kInf);
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4096)
+  for (std::int64_t j = 0; j < m; ++j) {
+    const auto i = static_cast<std::size_t>(j);
+    if (changed_world.nearest(points[i], owner[i]) <= kLabelDistance)
+      dist[i] = world.nearest(points[i], owner[i]);
+  }
+
+  data.cloud.points.reserve(points.size());
+  std::vector<double> gt_ids;
+  for (std::size_t j = 0; j < points.size(); ++j) {
+    const Eigen::Vector3f p = (E * points[j]).cast<float>();
+    data.cloud.points.push_back(p);
+    if (dist[j] <= kLabelDistance && ids.count(owner[j])) {
+      data.gt.points.push_back(p);
+      gt_ids.push_back(owner[j]);
+    }
+  }
+  data.cloud.width = static_cast<std::uint32_t>(data.cloud.points.size());
+  data.gt.width = static_cast<std::uint32_t>(data.gt.points.size());
+  ScalarField& field = data.gt.addField("object_id", ScalarType::Int32);
+  field.values = std::move(gt_ids);
+  report("cloud " + std::to_string(data.cloud.size()) + " points, ground truth " +
+         std::to_string(data.gt.size()) + " points on " + std::to_string(ids.size()) +
+         " changed objects (" + fixed(secondsSince(t0), 1) + " s)");
+  return data;
+}
+
+}  // namespace
+
+Simulation simulate(const Scene& scene, const SimulateOptions& options) {
+  validateScene(scene, "scene");
+  const int threads = options.threads > 0 ? options.threads : std::max(1, omp_get_max_threads());
+  const ChangedIds changed = changedObjects(scene);
+  Simulation sim;
+  sim.reference = simulateSession(scene, 0, changed.reference, threads, options);
+  sim.current = simulateSession(scene, 1, changed.current, threads, options);
+  return sim;
+}
+
+void writeSimulation(const std::string& dir, const Scene& scene, const Simulation& simulation) {
+  const fs::path root(dir);
+  std::error_code ec;
+  fs::create_directories(root / "gt", ec);
+  if (ec || !fs::is_directory(root / "gt"))
+    throw Error(dir, "cannot create the output folder: " +
+                         (ec ? ec.message() : std::string("not a folder")));
+  for (const auto& [data, label] :
+       {std::pair<const SessionData*, const char*>{&simulation.reference, "reference"},
+        {&simulation.current, "current"}}) {
+    io::writeTumSequence((root / label).string(), data->frames, data->reported_poses);
+    io::writePly((root / (std::string(label) + ".ply")).string(), data->cloud);
+    io::writePly((root / "gt" / (std::string(label) + ".ply")).string(), data->gt);
+  }
+  saveSceneJson((root / "scene.json").string(), scene);
+}
+
+}  // namespace planesdf::sim

@@ -1,0 +1,1 @@
+set(PLANESDF_SIM_SOURCES scene.cpp preset.cpp scene_json.cpp geometry.cpp world.cpp render.cpp simulate.cpp)
