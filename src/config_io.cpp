@@ -48,6 +48,7 @@ const std::vector<Param>& params() {
       {"delta_n", &Config::delta_n},
       {"delta_d", &Config::delta_d},
       {"refine_inplane", &Config::refine_inplane},
+      {"silhouette_guard_behind", &Config::silhouette_guard_behind},
       {"delta_h", &Config::delta_h},
       {"min_change_cells", &Config::min_change_cells},
       {"dilation_cells", &Config::dilation_cells},

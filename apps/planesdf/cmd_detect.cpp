@@ -20,7 +20,7 @@ double msSince(std::chrono::steady_clock::time_point t0) {
 
 int runDetect(const DetectArgs& args) {
   const Config cfg = resolveConfig(args.pipeline);
-  const bool up_defaulted = args.pipeline.up.empty() && args.pipeline.config_file.empty();
+  const bool up_defaulted = upDefaulted(args.pipeline);
   const auto t0 = std::chrono::steady_clock::now();
   const Map reference =
       loadSession(args.reference, cfg, args.pipeline.intrinsics, "reference", up_defaulted);

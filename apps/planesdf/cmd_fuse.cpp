@@ -14,8 +14,8 @@ namespace planesdf::cli {
 int runFuse(const FuseArgs& args) {
   const Config cfg = resolveConfig(args.pipeline);
   const auto t0 = std::chrono::steady_clock::now();
-  const Map map = loadSession(args.input, cfg, args.pipeline.intrinsics, "fuse",
-                              args.pipeline.up.empty() && args.pipeline.config_file.empty());
+  const Map map =
+      loadSession(args.input, cfg, args.pipeline.intrinsics, "fuse", upDefaulted(args.pipeline));
   const double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   if (map.planes().empty())

@@ -31,6 +31,9 @@ struct PipelineArgs {
 /// --up. Throws planesdf::Error("--up", ...) on a malformed up axis, and names the file or
 /// "command line" on an invalid parameter.
 Config resolveConfig(const PipelineArgs& args);
+/// True when neither --up nor the --config file chooses the up axis (loadSession may then pick
+/// --up auto for organised clouds in their own camera frame).
+bool upDefaulted(const PipelineArgs& args);
 
 struct EvalArgs {
   std::string detect_dir;

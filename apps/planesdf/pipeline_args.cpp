@@ -1,4 +1,6 @@
 // Turning the shared pipeline flags into a Config.
+#include <fstream>
+#include <nlohmann/json.hpp>
 #include <sstream>
 
 #include "commands.hpp"
@@ -32,6 +34,15 @@ Config resolveConfig(const PipelineArgs& args) {
   }
   validateConfig(cfg, "command line");
   return cfg;
+}
+
+bool upDefaulted(const PipelineArgs& args) {
+  if (!args.up.empty()) return false;
+  if (args.config_file.empty()) return true;
+  // resolveConfig has read the file already: it parses.
+  std::ifstream in(args.config_file);
+  const nlohmann::json j = nlohmann::json::parse(in, nullptr, false);
+  return !j.is_object() || (!j.contains("up") && !j.contains("up_auto"));
 }
 
 }  // namespace planesdf::cli

@@ -66,6 +66,11 @@ struct Config {
   double min_depth = 0.2;     ///< m
   float max_weight = 100.0f;  ///< weight cap per voxel
   int threads = 0;            ///< fusion threads; 0 = hardware concurrency
+  /// Projective fusion skips "inside" values behind a surface near a silhouette, where the
+  /// object may already have ended (integrateDepth). Right when other views fill in what is
+  /// skipped (frame streams); Map::fromCloud of an organised cloud, a single view, turns it off
+  /// for its fusion, since nothing could replace the object rims it drops.
+  bool silhouette_guard_behind = true;
   /// Lateral radius (in voxels) of the cylinder a point with a normal updates when an
   /// unorganised cloud is splatted (integratePointsWithNormals).
   double splat_radius_voxels = 1.0;

@@ -58,7 +58,8 @@ class Map {
 
   /// The map of one whole scene cloud in the world frame: planes by whole-cloud detection (PCA
   /// normals, normal clustering, offset split), then fusion as integrate(cloud, identity). All
-  /// in-band points are kept.
+  /// in-band points are kept. An organised cloud is one view: it is fused with
+  /// cfg.silhouette_guard_behind off.
   static Map fromCloud(const PointCloud& world, const Config& cfg);
 
   const Config& config() const { return cfg_; }
@@ -92,7 +93,8 @@ class Map {
   IntegrateStats integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
                                 bool whole_cloud);
   void keepPoints(const std::vector<Eigen::Vector3f>& points_world, bool deduplicate);
-  IntegrateStats fuseDepth(const DepthFrame& frame, const Pose& camera_to_world);
+  IntegrateStats fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
+                           const Config& fuse_cfg);
 
   Config cfg_;
   PlaneTracker tracker_;

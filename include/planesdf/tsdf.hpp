@@ -316,8 +316,10 @@ struct IntegrationResult {
 ///    (8x8-pixel tiles within the truncation's lateral reach) are at most one truncation behind
 ///    it. In front, this removes the silhouette bias of projective fusion (a voxel beside an
 ///    object, seeing the background, would get the background's distance) while keeping the free
-///    space around small objects observed; behind, it drops "inside" values past an object's far
-///    rim, where the object may end.
+///    space around small objects observed. Behind the surface (cfg.silhouette_guard_behind), only
+///    depth-jump edges count, within min(|sdf|, trunc) * sin(ray, normal): the ray meets the
+///    surface that far (laterally) before the voxel, so an object rim closer than that may put
+///    the voxel past the object's hidden side ("inside" values past a far rim).
 ///    Fusion is a running average with weight 1 per observation, capped at max_weight.
 ///
 /// Candidate blocks are the allocated blocks of the frustum's local AABB (clipped to the band and

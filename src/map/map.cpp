@@ -162,11 +162,12 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   }
 }
 
-IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world) {
+IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
+                              const Config& fuse_cfg) {
   IntegrateStats stats;
   for (auto& ps : planes_) {
     const Pose T_local_camera = ps.plane.frame().inverse() * camera_to_world;
-    const IntegrationResult r = integrateDepth(ps.volume, frame, T_local_camera, cfg_);
+    const IntegrationResult r = integrateDepth(ps.volume, frame, T_local_camera, fuse_cfg);
     addResult(stats, ps.plane.id, r);
   }
   return stats;
@@ -179,7 +180,7 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   tracker_.integrate(pts, camera_to_world.translation());
   IntegrateStats created;
   syncPlanes(created);
-  IntegrateStats stats = fuseDepth(frame, camera_to_world);
+  IntegrateStats stats = fuseDepth(frame, camera_to_world, cfg_);
   stats.new_planes = std::move(created.new_planes);
   keepPoints(pts, true);
   ++frames_;
@@ -226,7 +227,10 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   if (cloud.isOrganized()) {
     const Intrinsics k = estimateIntrinsics(cloud);
     const DepthFrame depth = depthFromOrganizedCloud(cloud, k);
-    stats = fuseDepth(depth, world.sensor_pose);
+    // A whole scene given as one organised cloud is a single view: keep the rims (Config).
+    Config fuse_cfg = cfg_;
+    if (whole_cloud) fuse_cfg.silhouette_guard_behind = false;
+    stats = fuseDepth(depth, world.sensor_pose, fuse_cfg);
   } else {
     // No pixel grid: splat each point along its PCA normal.
     const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);

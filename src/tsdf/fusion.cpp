@@ -373,6 +373,8 @@ struct FrameMeasurements {
   int tiles_x = 0, tiles_y = 0;
   /// Per pixel: chessboard distance (pixels, saturated at kFarEdge) to the nearest edge pixel.
   std::vector<std::uint8_t> edge_dist;
+  /// The same to the nearest depth-discontinuity edge only (silhouettes; no grazing pixels).
+  std::vector<std::uint8_t> silhouette_dist;
 };
 
 /// True when pixel u of `row` (depth d) has a valid 4-neighbour farther than d + max_jump.
@@ -475,14 +477,16 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
   fm.guard.assign(static_cast<std::size_t>(fm.tiles_x) * fm.tiles_y,
                   std::numeric_limits<float>::infinity());
   fm.edge_dist.resize(static_cast<std::size_t>(W) * H);
+  fm.silhouette_dist.resize(static_cast<std::size_t>(W) * H);
   std::vector<std::vector<std::uint64_t>> new_keys(threads);
   std::size_t in_band = 0, n_valid = 0;
   double sum_depth = 0.0;
 #pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : in_band, n_valid, sum_depth)
   {
     SegmentBlocks segments(vol);
-    std::vector<int> edge_cols;
+    std::vector<int> edge_cols, silhouette_cols;
     edge_cols.reserve(static_cast<std::size_t>(W));
+    silhouette_cols.reserve(static_cast<std::size_t>(W));
 #pragma omp for schedule(dynamic, 1)
     for (int ty = 0; ty < fm.tiles_y; ++ty) {
       float* guard_row = fm.guard.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
@@ -495,6 +499,7 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
         const float* below = v + 1 < H ? depth + W : nullptr;
         PixelMeasurement* out = fm.pixels.data() + static_cast<std::size_t>(v) * W;
         edge_cols.clear();
+        silhouette_cols.clear();
         for (int u = 0; u < W; ++u) {
           const float d = depth[u];
           if (!(d >= cam.z_min && d <= cam.z_max)) {
@@ -507,10 +512,12 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
           float n[3];
           surfaceNormal(above, depth, below, u, xn[u], yn, d, cam, max_jump, n);
           const float k = -(n[0] * xn[u] + n[1] * yn + n[2]);  // 0 when grazing
-          if (k == 0.0f || isForegroundEdge(above, depth, below, u, W, d, max_jump, cam)) {
+          const bool silhouette = isForegroundEdge(above, depth, below, u, W, d, max_jump, cam);
+          if (k == 0.0f || silhouette) {
             float& g = guard_row[u >> kGuardTileShift];
             g = std::min(g, d);
             edge_cols.push_back(u);
+            if (silhouette) silhouette_cols.push_back(u);
           }
           // The ray in local coordinates per unit depth, and the point's height.
           const float dir[3] = {xn[u] * R(0, 0) + row_dir[0], xn[u] * R(1, 0) + row_dir[1],
@@ -546,12 +553,15 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
         }
         rowEdgeDistance(edge_cols.data(), static_cast<int>(edge_cols.size()), W,
                         fm.edge_dist.data() + static_cast<std::size_t>(v) * W);
+        rowEdgeDistance(silhouette_cols.data(), static_cast<int>(silhouette_cols.size()), W,
+                        fm.silhouette_dist.data() + static_cast<std::size_t>(v) * W);
       }
     }
     new_keys[omp_get_thread_num()] = segments.newKeys();
   }
   allocated = allocateKeys(vol, new_keys);
   columnEdgeDistance(fm.edge_dist.data(), W, H);
+  columnEdgeDistance(fm.silhouette_dist.data(), W, H);
   // Lateral reach of the truncation at the frame's mean depth, in tiles.
   if (n_valid > 0) {
     const double reach_px = trunc / (footprint * (sum_depth / static_cast<double>(n_valid)));
@@ -674,6 +684,7 @@ struct DepthUpdateParams {
   float max_weight;
   float voxel;
   Band band;
+  bool guard_behind;  ///< cfg.silhouette_guard_behind
 };
 
 /// Pass 2 for one block: projects its voxel centres (memory order) and fuses them.
@@ -701,6 +712,7 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   const float* yn = fm.yn.data();
   const float* guard = fm.guard.data();
   const std::uint8_t* edge_dist = fm.edge_dist.data();
+  const std::uint8_t* silhouette_dist = fm.silhouette_dist.data();
   const float fx = cam.fx, fy = cam.fy, cx = cam.cx, cy = cam.cy;
   const float trunc = prm.trunc, depth_scale = fm.depth_scale;
   const float behind = kBehindFraction * trunc;
@@ -739,9 +751,19 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
         // Silhouette guard: |sdf| (at most trunc) against the lateral distance to an edge.
         if (std::fabs(sdf) > guard_sdf &&
             guard[(vi >> kGuardTileShift) * fm.tiles_x + (ui >> kGuardTileShift)] <= zc + trunc) {
-          float edge_px = edge_dist[pix];
-          if (sdf < 0.0f) edge_px += kSilhouetteOffsetPx;
-          if (std::min(std::fabs(sdf), trunc) * edge_scale > edge_px * zc) continue;
+          if (sdf > 0.0f) {
+            if (std::min(sdf, trunc) * edge_scale > edge_dist[pix] * zc) continue;
+          } else {
+            // Behind: only a silhouette can put the voxel beyond the object's hidden side, and
+            // only if it lies within |sdf| * sin(angle between ray and surface) of the voxel's
+            // line of sight (the ray meets the surface |sdf| / cos before the voxel).
+            const float cos_ray =
+                static_cast<float>(m.kq < 0 ? -m.kq : m.kq) * (1.0f / kCosineScale);
+            const float sin_ray = std::sqrt(std::max(0.0f, 1.0f - cos_ray * cos_ray));
+            const float edge_px = silhouette_dist[pix] + kSilhouetteOffsetPx;
+            if (prm.guard_behind && std::min(-sdf, trunc) * sin_ray * edge_scale > edge_px * zc)
+              continue;
+          }
         }
         if (sdf >= trunc)
           sdf = trunc;
@@ -856,8 +878,12 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
   const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band);
   std::vector<BlockOutcome> outcomes(slots.size());
   const FrustumCull cull(cam);
-  DepthUpdateParams prm{&fm, static_cast<float>(vol.truncation()), cfg.max_weight,
-                        static_cast<float>(vol.voxelSize()), band};
+  DepthUpdateParams prm{&fm,
+                        static_cast<float>(vol.truncation()),
+                        cfg.max_weight,
+                        static_cast<float>(vol.voxelSize()),
+                        band,
+                        cfg.silhouette_guard_behind};
   const std::vector<std::uint32_t> order = imageOrder(vol, slots, cam);
   const int n = static_cast<int>(order.size());
 #pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4)
