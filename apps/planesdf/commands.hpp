@@ -54,6 +54,13 @@ int runFuse(const FuseArgs& args);
 
 int runInfo(const std::string& input);
 
+struct DemoArgs {
+  std::string out = "planesdf_demo";
+  std::string scene = "tabletop";
+  unsigned seed = 1;
+};
+int runDemo(const DemoArgs& args);
+
 struct SimulateArgs {
   std::string scene;  ///< "tabletop", "room" or a scene JSON file
   unsigned seed = 1;

@@ -130,7 +130,7 @@ int main(int argc, char** argv) {
     if (*info) return runInfo(info_input);
     if (*fuse) return runFuse(fuse_args);
     if (*eval) return runEval(eval_args);
-    if (*demo) return notImplemented("demo", "the simulator is issue 5");
+    if (*demo) return runDemo({demo_out, demo_scene, demo_seed});
     if (*simulate)
       return runSimulate({sim_scene, sim_seed, simulate->count("--seed") > 0, sim_out});
     if (*detect) return runDetect(det_args);
