@@ -616,10 +616,40 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
 
   std::vector<CandidateChange> removed, added;
   RefinedTransforms refined;
+  // The localisation error between sessions is one rigid motion for the whole map: it is
+  // estimated on the horizontal pair whose in-plane refinement is clearest (most mismatches
+  // removed; usually a table, where objects give the height maps structure), as a world
+  // correction C (rotation about the vertical, horizontal shift), and applied to every forward
+  // pair before that pair's own refinement (which then usually keeps it).
+  const std::vector<PlaneMatch> forward_matches =
+      uniqueMatches(registerPlanes(reference, current, cfg));
+  Pose correction = Pose::Identity();
+  if (cfg.refine_inplane) {
+    int best_gain = 0;
+    for (const PlaneMatch& m : forward_matches) {
+      const Plane& ps = rp[static_cast<std::size_t>(m.source_id)].plane;
+      const Plane& pt = cp[static_cast<std::size_t>(m.target_id)].plane;
+      if (ps.orientation != Plane::Orientation::Horizontal ||
+          pt.orientation != Plane::Orientation::Horizontal)
+        continue;
+      Pose T = m.T_target_source_local;
+      const InPlaneRefinement r = refineInPlane(mapsOf(true, m.source_id).heights,
+                                                mapsOf(false, m.target_id).heights, T, cfg);
+      const int gain = r.mismatches_before - r.mismatches_after;
+      if (!r.applied || gain <= best_gain) continue;
+      best_gain = gain;
+      // T = D * T0 in target-local coordinates: C = F_t * D * F_t^-1 in the world.
+      correction = pt.frame() * (T * m.T_target_source_local.inverse()) * pt.frame().inverse();
+    }
+  }
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
     const Map& src = forward ? reference : current;
     const Map& tgt = forward ? current : reference;
-    for (const PlaneMatch& m : uniqueMatches(registerPlanes(src, tgt, cfg))) {
+    for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg))) {
+      if (forward) {
+        const Pose Ft = cp[static_cast<std::size_t>(m.target_id)].plane.frame();
+        m.T_target_source_local = Ft.inverse() * correction * Ft * m.T_target_source_local;
+      }
       PlanePairResult res;
       auto c = compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
                                   mapsOf(!forward, m.target_id), refined, cfg, options, &res);

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
 #include <vector>
@@ -129,6 +130,9 @@ constexpr int kMinGainCells = 20;
 /// Samples of the coarse search of refineInPlane.
 constexpr std::size_t kCoarseSamples = 6000;
 constexpr double kMinGainFraction = 0.2;
+/// ... or at least this many standard deviations of the initial mismatch count (a Poisson
+/// count): when real changes make most of the mismatches, a drift correction is still clear.
+constexpr double kMinGainSigmas = 3.0;
 
 struct Sample {
   Eigen::Vector2d uv;       ///< source cell centre mapped by the initial T, target-local
@@ -214,6 +218,33 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   if (observed == 0) return out;
   const std::size_t cap = static_cast<std::size_t>(std::max(1, search.max_cells));
   const std::size_t stride = (observed + cap - 1) / cap;
+  // Per source cell under the initial T: -1 not compared, 0 agrees, 1 differs. A difference
+  // with no differing 8-neighbour is sensor noise (the comparison's component filter drops it
+  // too): it is not a sample, so noise cannot dilute the evidence of a real misalignment.
+  std::vector<std::int8_t> state(src.numCells(), -1);
+  for (int y = 0; y < src.height; ++y)
+    for (int x = 0; x < src.width; ++x) {
+      const float h = src.at(x, y);
+      if (h == kUnobserved) continue;
+      const Eigen::Vector2d c = src.cellCenter(x, y);
+      const Eigen::Vector2i tc = tgt.cellOf((T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>());
+      if (!tgt.inBounds(tc.x(), tc.y()) || !tgt.observed(tc.x(), tc.y())) continue;
+      state[static_cast<std::size_t>(y) * src.width + x] =
+          std::abs(static_cast<double>(tgt.at(tc.x(), tc.y())) - static_cast<double>(h)) >
+                  cfg.delta_h
+              ? 1
+              : 0;
+    }
+  const auto isolated = [&](int x, int y) {
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        if ((dx == 0 && dy == 0) || x + dx < 0 || y + dy < 0 || x + dx >= src.width ||
+            y + dy >= src.height)
+          continue;
+        if (state[static_cast<std::size_t>(y + dy) * src.width + (x + dx)] == 1) return false;
+      }
+    return true;
+  };
   std::vector<Sample> samples;
   samples.reserve(std::min(observed, cap) + 1);
   std::size_t k = 0;
@@ -225,13 +256,11 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
       const float h = src.at(x, y);
       if (h == kUnobserved) continue;
       if (k++ % stride != 0) continue;
+      const std::int8_t st = state[static_cast<std::size_t>(y) * src.width + x];
+      if (st < 0 || (st == 1 && isolated(x, y))) continue;
       const Eigen::Vector2d c = src.cellCenter(x, y);
       const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
-      const Eigen::Vector2i tc = tgt.cellOf(uv);
-      if (!tgt.inBounds(tc.x(), tc.y()) || !tgt.observed(tc.x(), tc.y())) continue;
-      const bool mismatched = std::abs(static_cast<double>(tgt.at(tc.x(), tc.y())) -
-                                       static_cast<double>(h)) > cfg.delta_h;
-      samples.push_back({uv, h, mismatched});
+      samples.push_back({uv, h, st == 1});
       lo = lo.cwiseMin(uv);
       hi = hi.cwiseMax(uv);
     }
@@ -303,7 +332,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   // remove at least kMinGainFraction of the initial mismatches and kMinGainCells cells (changed
   // objects mismatch wherever they are put; only drift makes a shift pay off substantially).
   const int gain = initial.mismatches - best.mismatches;
-  if (gain < kMinGainCells || gain < kMinGainFraction * initial.mismatches) return out;
+  if (gain < kMinGainCells || (gain < kMinGainFraction * initial.mismatches &&
+                               gain < kMinGainSigmas * std::sqrt(initial.mismatches)))
+    return out;
 
   out.applied = true;
   out.du = best_cand->du;
