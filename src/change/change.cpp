@@ -479,10 +479,38 @@ int typeOrder(ChangeType t) {
 
 }  // namespace
 
+/// assembleEvents: a removed and an added Unknown candidate whose centroids are closer than this
+/// fraction of their (smaller) box diagonal are one object in place.
+constexpr double kInPlaceShiftFraction = 0.15;
+
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg) {
   std::vector<ChangeEvent> events;
   std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
+
+  // The same object in place: a removed and an added candidate with matching shapes standing on
+  // the same columns, neither with 3D evidence (both Unknown: the validation scored no key
+  // voxel), are one static object whose height maps differ (seen from other viewpoints), not a
+  // change. Candidates the validation did score keep their verdict.
+  const auto unknown = [](const CandidateChange& c) {
+    return c.region.verdict == BlobValidation::Verdict::Unknown;
+  };
+  for (std::size_t i = 0; i < removed.size(); ++i) {
+    if (!unknown(removed[i])) continue;
+    for (std::size_t j = 0; j < added.size() && !r_used[i]; ++j) {
+      if (a_used[j] || !unknown(added[j]) || added[j].region.plane_id != removed[i].target_plane_id)
+        continue;
+      if (!columnsOverlap(removed[i].target_columns, added[j].region.columns)) continue;
+      if (shapeDistance(removed[i].region.shape, added[j].region.shape) >= kMovedShapeDistance)
+        continue;
+      // Coverage shifts a region's centroid by a fraction of its size; a move by the move.
+      const ChangeRegion& rr = removed[i].region;
+      const ChangeRegion& ar = added[j].region;
+      const double size = std::min(rr.bbox.diagonal().norm(), ar.bbox.diagonal().norm());
+      if ((rr.centroid - ar.centroid).norm() > kInPlaceShiftFraction * size) continue;
+      r_used[i] = a_used[j] = true;
+    }
+  }
 
   // Moved: greedy over the pairs with matching shapes, best first.
   std::vector<std::tuple<double, std::size_t, std::size_t>> pairs;
