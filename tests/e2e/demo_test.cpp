@@ -33,6 +33,21 @@ TEST(Demo, TabletopFindsEveryChangeAndWritesItsReport) {
   EXPECT_NE(text.find("detect/planes/"), std::string::npos);
   std::ifstream png(tmp.file("detect/planes/ref_1_to_cur_0_raw.png"), std::ios::binary);
   EXPECT_TRUE(png.good());
+
+  // `detect` on the demo's inputs in other forms: the reference as its TUM folder (fused by the
+  // CLI, frame by frame as the demo does), the current as the demo's saved map. Same maps, same
+  // changes: the scores equal the demo's.
+  const std::string det = tmp.file("detect_mixed");
+  const auto d = runCli("detect '" + tmp.file("sim/reference") + "' '" + tmp.file("current.psdf") +
+                        "' --out '" + det + "'");
+  ASSERT_EQ(d.exit_code, 0) << d.out;
+  const auto e = runCli("eval '" + det + "' --gt-reference '" + tmp.file("sim/gt/reference.ply") +
+                        "' --gt-current '" + tmp.file("sim/gt/current.ply") + "' --json");
+  ASSERT_EQ(e.exit_code, 0) << e.out;
+  const nlohmann::json m = nlohmann::json::parse(e.out.substr(e.out.find('{')));
+  EXPECT_NEAR(m["f1"].get<double>(), j["f1"].get<double>(), 1e-9);
+  EXPECT_EQ(m["missed"].get<int>(), j["missed"].get<int>());
+  EXPECT_EQ(m["wrong"].get<int>(), j["wrong"].get<int>());
 }
 
 }  // namespace
