@@ -13,10 +13,17 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <set>
 
+#include <nlohmann/json.hpp>
+
+#include "analytic_scene.hpp"
 #include "planesdf/error.hpp"
+#include "planesdf/io/atomic_file.hpp"
+#include "planesdf/map.hpp"
 #include "planesdf/mrpt/pose_conversion.hpp"
 #include "planesdf/mrpt/range_scan.hpp"
+#include "test_support.hpp"
 
 namespace {
 using planesdf::DepthFrame;
@@ -222,6 +229,53 @@ TEST(MrptRawlog, ErrorsNameTheFile) {
   } catch (const planesdf::Error& e) {
     EXPECT_EQ(e.path(), garbage) << e.what();
   }
+}
+
+// ---- the CLI reads rawlogs -------------------------------------------------------------------
+
+/// An analytic tabletop session (8 views on a ring) written as a rawlog of 3D range scans.
+void writeSessionRawlog(const std::string& path, const planesdf::test::AnalyticScene& scene) {
+  mrpt::io::CFileGZOutputStream out(path);
+  auto arch = mrpt::serialization::archiveFrom(out);
+  for (const Pose& T : planesdf::test::ringPoses({0, 0, 0.75}, 0.9, 0.55, 8)) {
+    CObservation3DRangeScan s;
+    ma::toRangeScan(planesdf::test::renderDepth(scene, planesdf::Intrinsics{}, T), T, s);
+    arch << s;
+  }
+}
+
+TEST(MrptRawlog, CliDetectsChangesBetweenTwoRawlogs) {
+  using planesdf::test::Primitive;
+  const auto table = [](std::vector<Primitive> objects) {
+    planesdf::test::AnalyticScene s;
+    s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
+    s.primitives.push_back(Primitive::box({-0.6, -0.4, 0.72}, {0.6, 0.4, 0.75}));
+    for (auto& o : objects) s.primitives.push_back(o);
+    return s;
+  };
+  planesdf::test::TempDir dir;
+  const std::string before = dir.path() + "/before.rawlog", after = dir.path() + "/after.rawlog";
+  // The box is removed, a sphere is added, the cylinder moved 20 cm.
+  writeSessionRawlog(before, table({Primitive::box({0.05, 0.02, 0.75}, {0.15, 0.08, 0.83}),
+                                    Primitive::cylinder({-0.15, -0.10, 0.75}, 0.04, 0.12)}));
+  writeSessionRawlog(after, table({Primitive::sphere({-0.12, 0.15, 0.80}, 0.05),
+                                   Primitive::cylinder({0.05, -0.10, 0.75}, 0.04, 0.12)}));
+  const auto r = planesdf::test::runCli("detect " + before + " " + after + " --out " + dir.path() +
+                                        "/out");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  const auto events = nlohmann::json::parse(planesdf::io::readFile(dir.path() + "/out/changes.json"));
+  std::multiset<std::string> types;
+  for (const auto& e : events) types.insert(e.at("type").get<std::string>());
+  EXPECT_EQ(types, (std::multiset<std::string>{"added", "moved", "removed"})) << events.dump(1);
+
+  const auto fused = planesdf::test::runCli("fuse " + before + " --out " + dir.path() + "/b.psdf");
+  ASSERT_EQ(fused.exit_code, 0) << fused.out;
+  EXPECT_EQ(planesdf::Map::load(dir.path() + "/b.psdf").frames(), 8u);
+
+  const std::string missing = dir.path() + "/missing.rawlog";
+  const auto bad = planesdf::test::runCli("fuse " + missing + " --out " + dir.path() + "/m.psdf");
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.out.find(missing), std::string::npos) << bad.out;
 }
 
 }  // namespace
