@@ -82,9 +82,10 @@ int main() {
   mrpt::maps::CColouredPointsMap points;
   changes->getChangedPoints(points);
   std::printf("%s\n", changes->asString().c_str());
-  std::printf("%d notifications; %zu coloured change points (added red, removed blue, moved "
-              "yellow, replaced magenta)\n",
-              printer.received, points.size());
+  std::printf(
+      "%d notifications; %zu coloured change points (added red, removed blue, moved "
+      "yellow, replaced magenta)\n",
+      printer.received, points.size());
   std::printf("%zu change events\n", changes->changes().size());
   return 0;
 }

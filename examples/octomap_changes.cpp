@@ -35,7 +35,8 @@ int main() {
 
   // The user's map of the reference session: a 2 cm OcTree (here from the session's scene cloud).
   octomap::OcTree tree(0.02);
-  for (const Eigen::Vector3f& p : data.reference.cloud.points) tree.updateNode(p.x(), p.y(), p.z(), true);
+  for (const Eigen::Vector3f& p : data.reference.cloud.points)
+    tree.updateNode(p.x(), p.y(), p.z(), true);
   const octomap::OcTree before = tree;
 
   const octomap_adapter::OctreeChangeStats stats = octomap_adapter::applyChanges(changes, tree);

@@ -34,9 +34,10 @@ int main() {
   detector.onEvent([&](const ChangeEvent& e) {
     ++alerts;
     const Eigen::Vector3d c = e.primary().centroid;
-    std::printf("  frame %3zu: change #%d %s (%s) at (%.2f, %.2f, %.2f), %zu points, confidence %.2f\n",
-                frame_index, e.id, toString(e.type), toString(e.status), c.x(), c.y(), c.z(),
-                e.numPoints(), e.confidence);
+    std::printf(
+        "  frame %3zu: change #%d %s (%s) at (%.2f, %.2f, %.2f), %zu points, confidence %.2f\n",
+        frame_index, e.id, toString(e.type), toString(e.status), c.x(), c.y(), c.z(), e.numPoints(),
+        e.confidence);
   });
   for (frame_index = 0; frame_index < data.current.frames.size(); ++frame_index) {
     const auto t0 = std::chrono::steady_clock::now();

@@ -80,7 +80,8 @@ int main(int argc, char** argv) {
   // fuse
   FuseArgs fuse_args;
   auto* fuse = app.add_subcommand("fuse", "Build a PlaneSDF map of one session");
-  fuse->add_option("INPUT", fuse_args.input, "Scene cloud, TUM folder, .psdf map or .rawlog")->required();
+  fuse->add_option("INPUT", fuse_args.input, "Scene cloud, TUM folder, .psdf map or .rawlog")
+      ->required();
   fuse->add_option("--out", fuse_args.out, "Output map (.psdf)")->required();
   fuse->add_option("--pictures", fuse_args.pictures,
                    "Also write each plane's height map and object map as PNGs into this folder");

@@ -44,7 +44,9 @@ const AnalyticScene& after() {
                                         Primitive::cylinder({0.05, -0.10, kTable}, 0.04, 0.12)});
   return s;
 }
-std::vector<Pose> ring() { return test::ringPoses({0, 0, kTable}, 0.9, 0.55, 8); }
+std::vector<Pose> ring() {
+  return test::ringPoses({0, 0, kTable}, 0.9, 0.55, 8);
+}
 
 const Map& referenceMap() {
   static const Map m = [] {
@@ -117,7 +119,8 @@ TEST(MrptChangeMap, ObserversReceiveTheChangeEvents) {
     EXPECT_EQ(last->type, e.type);
     EXPECT_GT(last->numPoints(), 0u);
   }
-  EXPECT_EQ(types, (std::set<ChangeType>{ChangeType::Added, ChangeType::Removed, ChangeType::Moved}))
+  EXPECT_EQ(types,
+            (std::set<ChangeType>{ChangeType::Added, ChangeType::Removed, ChangeType::Moved}))
       << changesToJson(active);
   // The removed box is where it was (world frame, through the robot and sensor poses).
   for (const ChangeEvent& e : active)
@@ -139,7 +142,8 @@ TEST(MrptChangeMap, ChangedPointsAreColouredByType) {
     const auto c = changeColor(e.type);
     float x, y, z, R, G, B;
     pts.getPointRGB(i, x, y, z, R, G, B);
-    const Eigen::Vector3f& p = e.reference.points.empty() ? e.current.points[0] : e.reference.points[0];
+    const Eigen::Vector3f& p =
+        e.reference.points.empty() ? e.current.points[0] : e.reference.points[0];
     EXPECT_FLOAT_EQ(x, p.x());
     EXPECT_NEAR(R, c[0] / 255.0f, 1e-3) << toString(e.type);
     EXPECT_NEAR(G, c[1] / 255.0f, 1e-3) << toString(e.type);

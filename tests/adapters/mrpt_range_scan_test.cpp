@@ -73,10 +73,9 @@ Eigen::Vector3d mrptWorldPoint(CObservation3DRangeScan& s, const mrpt::poses::CP
 TEST(MrptRangeScan, AxesAtTheOriginAreForwardLeftUp) {
   // Sensor and robot at the origin: the principal point at 2 m is 2 m forward (+x); a pixel
   // right of it is to the right (-y), a pixel above it is up (+z).
-  for (const auto& [u, v, expected] :
-       {std::tuple{31, 23, Eigen::Vector3d(2.0, 0.02, 0.02)},
-        std::tuple{56, 23, Eigen::Vector3d(2.0, -0.98, 0.02)},
-        std::tuple{31, 3, Eigen::Vector3d(2.0, 0.02, 0.82)}}) {
+  for (const auto& [u, v, expected] : {std::tuple{31, 23, Eigen::Vector3d(2.0, 0.02, 0.02)},
+                                       std::tuple{56, 23, Eigen::Vector3d(2.0, -0.98, 0.02)},
+                                       std::tuple{31, 3, Eigen::Vector3d(2.0, 0.02, 0.82)}}) {
     const CObservation3DRangeScan s = onePixelScan(u, v, 2000, true);
     const DepthFrame f = ma::toDepthFrame(s);
     EXPECT_FLOAT_EQ(f.at(u, v), 2.0f);
@@ -141,8 +140,9 @@ struct TempDir {
   fs::path path;
   TempDir() {
     path = fs::temp_directory_path() /
-           ("planesdf_mrpt_rawlog_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-            "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+           ("planesdf_mrpt_rawlog_" +
+            std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::create_directories(path);
   }
   ~TempDir() { fs::remove_all(path); }
@@ -260,10 +260,11 @@ TEST(MrptRawlog, CliDetectsChangesBetweenTwoRawlogs) {
                                     Primitive::cylinder({-0.15, -0.10, 0.75}, 0.04, 0.12)}));
   writeSessionRawlog(after, table({Primitive::sphere({-0.12, 0.15, 0.80}, 0.05),
                                    Primitive::cylinder({0.05, -0.10, 0.75}, 0.04, 0.12)}));
-  const auto r = planesdf::test::runCli("detect " + before + " " + after + " --out " + dir.path() +
-                                        "/out");
+  const auto r =
+      planesdf::test::runCli("detect " + before + " " + after + " --out " + dir.path() + "/out");
   ASSERT_EQ(r.exit_code, 0) << r.out;
-  const auto events = nlohmann::json::parse(planesdf::io::readFile(dir.path() + "/out/changes.json"));
+  const auto events =
+      nlohmann::json::parse(planesdf::io::readFile(dir.path() + "/out/changes.json"));
   std::multiset<std::string> types;
   for (const auto& e : events) types.insert(e.at("type").get<std::string>());
   EXPECT_EQ(types, (std::multiset<std::string>{"added", "moved", "removed"})) << events.dump(1);

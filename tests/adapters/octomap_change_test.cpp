@@ -141,8 +141,8 @@ TEST(OctomapChanges, ColorTreeIsPaintedByTypeAndWritten) {
         << toString(t) << " at " << p.transpose() << ": got " << int(got.r) << "," << int(got.g)
         << "," << int(got.b);
   };
-  expectColour(kBoxCentre, ChangeType::Removed);                                 // blue
-  expectColour(kSphereCentre, ChangeType::Added);                                // red
+  expectColour(kBoxCentre, ChangeType::Removed);                                  // blue
+  expectColour(kSphereCentre, ChangeType::Added);                                 // red
   expectColour(Eigen::Vector3d(-0.15, -0.10, kTable + 0.06), ChangeType::Moved);  // yellow, old
   expectColour(Eigen::Vector3d(0.05, -0.10, kTable + 0.06), ChangeType::Moved);   // and new
   // Unchanged space is not in the tree.
@@ -157,8 +157,8 @@ TEST(OctomapChanges, ColorTreeIsPaintedByTypeAndWritten) {
   const octomap::ColorOcTreeNode* node =
       color_back->search(kSphereCentre.x(), kSphereCentre.y(), kSphereCentre.z());
   ASSERT_NE(node, nullptr);
-  EXPECT_EQ(node->getColor(), tree.search(kSphereCentre.x(), kSphereCentre.y(), kSphereCentre.z())
-                                  ->getColor());
+  EXPECT_EQ(node->getColor(),
+            tree.search(kSphereCentre.x(), kSphereCentre.y(), kSphereCentre.z())->getColor());
   std::filesystem::remove(path);
 }
 

@@ -62,9 +62,13 @@ namespace planesdf::mrpt_adapter {
 
 CPlaneChangeMap::CPlaneChangeMap(const Config& cfg) : cfg_(cfg), map_(cfg) {}
 
-void CPlaneChangeMap::setReference(const Map& reference) { detector_.emplace(reference, cfg_); }
+void CPlaneChangeMap::setReference(const Map& reference) {
+  detector_.emplace(reference, cfg_);
+}
 
-void CPlaneChangeMap::loadReference(const std::string& path) { setReference(Map::load(path)); }
+void CPlaneChangeMap::loadReference(const std::string& path) {
+  setReference(Map::load(path));
+}
 
 std::size_t CPlaneChangeMap::detectChanges() {
   if (!detector_) return 0;
@@ -81,7 +85,9 @@ void CPlaneChangeMap::getChangedPoints(mrpt::maps::CColouredPointsMap& out) cons
   toColouredPointsMap(changes(), out);
 }
 
-bool CPlaneChangeMap::isEmpty() const { return map_.frames() == 0 && map_.planes().empty(); }
+bool CPlaneChangeMap::isEmpty() const {
+  return map_.frames() == 0 && map_.planes().empty();
+}
 
 void CPlaneChangeMap::saveMetricMapRepresentationToFile(const std::string& prefix) const {
   map_.save(prefix + ".psdf");
@@ -110,7 +116,8 @@ void CPlaneChangeMap::internal_clear() {
 }
 
 bool CPlaneChangeMap::internal_insertObservation(
-    const mrpt::obs::CObservation& obs, const std::optional<const mrpt::poses::CPose3D>& robotPose) {
+    const mrpt::obs::CObservation& obs,
+    const std::optional<const mrpt::poses::CPose3D>& robotPose) {
   const auto* scan = dynamic_cast<const mrpt::obs::CObservation3DRangeScan*>(&obs);
   if (scan == nullptr) return false;
   scan->load();
@@ -131,7 +138,9 @@ double CPlaneChangeMap::internal_computeObservationLikelihood(const mrpt::obs::C
 // Serialization (version 0): genericMapParams, the Config as JSON, the current map, the reference
 // map ("" when none) and detect_every. The detector's active changes are not stored: after
 // loading, the next detection reports every change again as new.
-uint8_t CPlaneChangeMap::serializeGetVersion() const { return 0; }
+uint8_t CPlaneChangeMap::serializeGetVersion() const {
+  return 0;
+}
 
 void CPlaneChangeMap::serializeTo(mrpt::serialization::CArchive& out) const {
   out << genericMapParams;
@@ -160,7 +169,8 @@ void toColouredPointsMap(const std::vector<ChangeEvent>& events,
     const auto c = changeColor(e.type);
     const float r = c[0] / 255.0f, g = c[1] / 255.0f, b = c[2] / 255.0f;
     for (const ChangeRegion* side : {&e.reference, &e.current})
-      for (const Eigen::Vector3f& p : side->points) out.insertPointRGB(p.x(), p.y(), p.z(), r, g, b);
+      for (const Eigen::Vector3f& p : side->points)
+        out.insertPointRGB(p.x(), p.y(), p.z(), r, g, b);
   }
 }
 

@@ -9,8 +9,12 @@
 namespace planesdf::octomap_adapter {
 namespace {
 
-bool isRemovedSide(const ChangeEvent& e) { return e.type != ChangeType::Added; }
-bool isAddedSide(const ChangeEvent& e) { return e.type != ChangeType::Removed; }
+bool isRemovedSide(const ChangeEvent& e) {
+  return e.type != ChangeType::Added;
+}
+bool isAddedSide(const ChangeEvent& e) {
+  return e.type != ChangeType::Removed;
+}
 
 /// Keys of `region` in any tree (OcTree or ColorOcTree share the key grid of their resolution).
 template <class Tree>
@@ -26,9 +30,10 @@ octomap::KeySet keysOf(const ChangeRegion& region, const Tree& tree, bool remove
   const double lowest = removed ? base + res : base;
   const auto insert = [&](const Eigen::Vector3d& q) {
     octomap::OcTreeKey key;
-    if (tree.coordToKeyChecked(octomap::point3d(static_cast<float>(q.x()), static_cast<float>(q.y()),
-                                                static_cast<float>(q.z())),
-                               key))
+    if (tree.coordToKeyChecked(
+            octomap::point3d(static_cast<float>(q.x()), static_cast<float>(q.y()),
+                             static_cast<float>(q.z())),
+            key))
       keys.insert(key);
   };
   for (const auto& pf : region.points) {

@@ -103,8 +103,8 @@ class CPlaneChangeMap : public mrpt::maps::CMetricMap {
       const mrpt::obs::CObservation& obs,
       const std::optional<const mrpt::poses::CPose3D>& robotPose = std::nullopt) override;
   /// Not a localisation map: likelihoods are not computed.
-  double internal_computeObservationLikelihood(const mrpt::obs::CObservation& obs,
-                                               const mrpt::poses::CPose3D& takenFrom) const override;
+  double internal_computeObservationLikelihood(
+      const mrpt::obs::CObservation& obs, const mrpt::poses::CPose3D& takenFrom) const override;
   bool internal_canComputeObservationLikelihood(const mrpt::obs::CObservation&) const override {
     return false;
   }

@@ -40,7 +40,7 @@ struct OctreeChangeOptions {
 };
 
 struct OctreeChangeStats {
-  std::size_t freed_voxels = 0;    ///< voxels of removed sides updated toward free
+  std::size_t freed_voxels = 0;     ///< voxels of removed sides updated toward free
   std::size_t occupied_voxels = 0;  ///< voxels of added sides updated toward occupied
 };
 
