@@ -16,6 +16,9 @@
 ///     reference_map = reference.psdf  ; saved reference map, empty = set it later
 ///     detect_every  = 1               ; run the detector every N scans (0 = only on demand)
 ///
+/// The factory entry is made when libplanesdf_mrpt is loaded: a program that only names the map
+/// in an INI must still link the library (and not drop it with --as-needed).
+///
 /// This header derives from mrpt::maps::CMetricMap and so includes MRPT headers (slow to
 /// compile): include it only where the map is used; the other adapter headers do not.
 
