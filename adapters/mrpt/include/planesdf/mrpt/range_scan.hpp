@@ -57,9 +57,9 @@ struct RawlogScan {
 /// latest CObservationRobotPose (its mean) or CObservationOdometry seen before it in the file
 /// (identity when none), so a rawlog whose scans carry their full pose in sensorPose needs
 /// neither. Other observations are skipped, and so are CActionCollection entries: incremental
-/// odometry actions are not integrated into a robot pose. Returns the number of scans. Throws planesdf::Error
-/// naming the file when it cannot be opened, an object cannot be read (truncated or foreign
-/// file), or it holds no 3D range scan with a range image.
+/// odometry actions are not integrated into a robot pose. Returns the number of scans. Throws
+/// planesdf::Error naming the file when it cannot be opened, an object cannot be read (truncated or
+/// foreign file), or it holds no 3D range scan with a range image.
 std::size_t readRawlog(const std::string& path,
                        const std::function<void(const RawlogScan&)>& on_scan);
 
