@@ -53,7 +53,8 @@ int notImplemented(const std::string& command, const std::string& issue) {
 int main(int argc, char** argv) {
   CLI::App app{
       "planesdf: PlaneSDF-based change detection between mapping sessions.\n"
-      "INPUT, REFERENCE and CURRENT are .ply/.pcd scene clouds, TUM RGB-D folders or .psdf maps."};
+      "INPUT, REFERENCE and CURRENT are .ply/.pcd scene clouds, TUM RGB-D folders, .psdf maps or "
+      ".rawlog files of 3D range scans (MRPT builds)."};
   app.require_subcommand(1);
   app.set_version_flag("--version", "planesdf 0.1.0");
 
@@ -79,7 +80,8 @@ int main(int argc, char** argv) {
   // fuse
   FuseArgs fuse_args;
   auto* fuse = app.add_subcommand("fuse", "Build a PlaneSDF map of one session");
-  fuse->add_option("INPUT", fuse_args.input, "Scene cloud, TUM folder or .psdf map")->required();
+  fuse->add_option("INPUT", fuse_args.input, "Scene cloud, TUM folder, .psdf map or .rawlog")
+      ->required();
   fuse->add_option("--out", fuse_args.out, "Output map (.psdf)")->required();
   fuse->add_option("--pictures", fuse_args.pictures,
                    "Also write each plane's height map and object map as PNGs into this folder");

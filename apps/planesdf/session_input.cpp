@@ -11,6 +11,9 @@
 #include "planesdf/error.hpp"
 #include "planesdf/io/cloud.hpp"
 #include "planesdf/io/tum.hpp"
+#ifdef PLANESDF_HAVE_MRPT
+#include "planesdf/mrpt/range_scan.hpp"
+#endif
 
 namespace planesdf::cli {
 namespace fs = std::filesystem;
@@ -81,6 +84,35 @@ Map fuseTum(const std::string& folder, const Config& cfg, const std::string& int
   return map;
 }
 
+/// A .rawlog of 3D range scans, fused frame by frame (MRPT adapter builds only).
+Map fuseRawlog(const std::string& path, const Config& cfg, const std::string& label) {
+#ifdef PLANESDF_HAVE_MRPT
+  Map map(cfg);
+  auto last = std::chrono::steady_clock::now();
+  double total_ms = 0.0;
+  std::size_t n = 0;
+  mrpt_adapter::readRawlog(path, [&](const mrpt_adapter::RawlogScan& scan) {
+    total_ms += map.integrate(scan.frame, scan.pose).milliseconds;
+    ++n;
+    const auto now = std::chrono::steady_clock::now();
+    if (now - last > std::chrono::milliseconds(500)) {
+      std::cerr << label << ": scan " << n << ", " << map.planes().size() << " planes, "
+                << (total_ms / static_cast<double>(n)) << " ms/frame\n";
+      last = now;
+    }
+  });
+  std::cerr << label << ": " << n << " scans, " << map.planes().size() << " planes, "
+            << (total_ms / static_cast<double>(n)) << " ms/frame\n";
+  return map;
+#else
+  (void)cfg;
+  (void)label;
+  throw Error(path,
+              ".rawlog input needs the MRPT adapter: this planesdf was built without it "
+              "(configure with -DPLANESDF_BUILD_MRPT=ON and libmrpt-dev installed)");
+#endif
+}
+
 }  // namespace
 
 Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
@@ -91,6 +123,7 @@ Map loadSession(const std::string& input, const Config& cfg, const std::string& 
     return fuseTum(input, cfg, intrinsics, label);
   }
   if (lowerExtension(input) == ".psdf") return Map::load(input);
+  if (lowerExtension(input) == ".rawlog") return fuseRawlog(input, cfg, label);
   const PointCloud cloud = io::readSceneCloud(input);
   if (up_defaulted && !cfg.up_auto && cloud.isOrganized() &&
       cloud.sensor_pose.isApprox(Pose::Identity())) {

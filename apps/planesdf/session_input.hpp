@@ -1,5 +1,6 @@
 #pragma once
-// Loading one session for the CLI: a .ply/.pcd scene cloud, a TUM RGB-D folder or a .psdf map.
+// Loading one session for the CLI: a .ply/.pcd scene cloud, a TUM RGB-D folder, a .psdf map or
+// (MRPT adapter builds) a .rawlog of 3D range scans.
 
 #include <string>
 
@@ -11,7 +12,9 @@ namespace planesdf::cli {
 Intrinsics parseIntrinsics(const std::string& text);
 
 /// The map of one session input. TUM folders are fused frame by frame with progress on stderr
-/// (prefixed by `label`); clouds go through Map::fromCloud; .psdf maps are loaded as saved.
+/// (prefixed by `label`); clouds go through Map::fromCloud; .psdf maps are loaded as saved;
+/// .rawlog files (CObservation3DRangeScan, see planesdf/mrpt/range_scan.hpp) are fused scan by
+/// scan when the MRPT adapter is built, else planesdf::Error names the file.
 /// When `up_defaulted` (no --up given) and the input is an organised cloud in its own camera
 /// frame (identity sensor pose), the up axis is estimated (auto) and a note goes to stderr.
 Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
