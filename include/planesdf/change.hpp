@@ -23,6 +23,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <string>
 #include <utility>
@@ -192,6 +193,20 @@ std::vector<CandidateChange> compareMatchedPair(
     const Map& reference, const Map& current, bool reference_to_current, PlaneMatch match,
     const PlaneMaps& source_maps, const PlaneMaps& target_maps, RefinedTransforms& refined,
     const Config& cfg, const DetectOptions& options, PlanePairResult* result);
+
+/// The localisation error between the sessions, as one world motion (rotation about the
+/// vertical, horizontal shift): the in-plane refinement of the horizontal forward pair (reference
+/// to current) that removes the most height mismatches, expressed in the world; identity when no
+/// horizontal pair refines. `maps(is_reference, plane_id)` gives a plane's maps. Every forward
+/// pair then starts from corrected(match, current, correction) before its own refinement: the
+/// floor or a side plane, with little in-plane structure of their own, get the table's
+/// alignment.
+Pose sessionCorrection(const Map& reference, const Map& current,
+                       const std::vector<PlaneMatch>& forward_matches,
+                       const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg);
+/// `match` (reference plane -> current plane) with the world correction applied on the current
+/// side.
+PlaneMatch corrected(PlaneMatch match, const Map& current, const Pose& correction);
 
 /// True when the two lists share a column.
 bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eigen::Vector2i>& b);

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <map>
 #include <set>
@@ -619,6 +620,35 @@ std::vector<CandidateChange> compareMatchedPair(
   return out;
 }
 
+Pose sessionCorrection(const Map& reference, const Map& current,
+                       const std::vector<PlaneMatch>& forward_matches,
+                       const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg) {
+  Pose correction = Pose::Identity();
+  int best_gain = 0;
+  for (const PlaneMatch& m : forward_matches) {
+    const Plane& ps = reference.planes()[static_cast<std::size_t>(m.source_id)].plane;
+    const Plane& pt = current.planes()[static_cast<std::size_t>(m.target_id)].plane;
+    if (ps.orientation != Plane::Orientation::Horizontal ||
+        pt.orientation != Plane::Orientation::Horizontal)
+      continue;
+    Pose T = m.T_target_source_local;
+    const InPlaneRefinement r =
+        refineInPlane(maps(true, m.source_id).heights, maps(false, m.target_id).heights, T, cfg);
+    const int gain = r.mismatches_before - r.mismatches_after;
+    if (!r.applied || gain <= best_gain) continue;
+    best_gain = gain;
+    // T = D * T0 in target-local coordinates: C = F_t * D * F_t^-1 in the world.
+    correction = pt.frame() * (T * m.T_target_source_local.inverse()) * pt.frame().inverse();
+  }
+  return correction;
+}
+
+PlaneMatch corrected(PlaneMatch match, const Map& current, const Pose& correction) {
+  const Pose Ft = current.planes()[static_cast<std::size_t>(match.target_id)].plane.frame();
+  match.T_target_source_local = Ft.inverse() * correction * Ft * match.T_target_source_local;
+  return match;
+}
+
 ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
                         const DetectOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -644,40 +674,19 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
 
   std::vector<CandidateChange> removed, added;
   RefinedTransforms refined;
-  // The localisation error between sessions is one rigid motion for the whole map: it is
-  // estimated on the horizontal pair whose in-plane refinement is clearest (most mismatches
-  // removed; usually a table, where objects give the height maps structure), as a world
-  // correction C (rotation about the vertical, horizontal shift), and applied to every forward
-  // pair before that pair's own refinement (which then usually keeps it).
   const std::vector<PlaneMatch> forward_matches =
       uniqueMatches(registerPlanes(reference, current, cfg));
-  Pose correction = Pose::Identity();
-  if (cfg.refine_inplane) {
-    int best_gain = 0;
-    for (const PlaneMatch& m : forward_matches) {
-      const Plane& ps = rp[static_cast<std::size_t>(m.source_id)].plane;
-      const Plane& pt = cp[static_cast<std::size_t>(m.target_id)].plane;
-      if (ps.orientation != Plane::Orientation::Horizontal ||
-          pt.orientation != Plane::Orientation::Horizontal)
-        continue;
-      Pose T = m.T_target_source_local;
-      const InPlaneRefinement r = refineInPlane(mapsOf(true, m.source_id).heights,
-                                                mapsOf(false, m.target_id).heights, T, cfg);
-      const int gain = r.mismatches_before - r.mismatches_after;
-      if (!r.applied || gain <= best_gain) continue;
-      best_gain = gain;
-      // T = D * T0 in target-local coordinates: C = F_t * D * F_t^-1 in the world.
-      correction = pt.frame() * (T * m.T_target_source_local.inverse()) * pt.frame().inverse();
-    }
-  }
+  const Pose correction =
+      cfg.refine_inplane
+          ? sessionCorrection(
+                reference, current, forward_matches,
+                [&](bool ref, int id) -> const PlaneMaps& { return mapsOf(ref, id); }, cfg)
+          : Pose::Identity();
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
     const Map& src = forward ? reference : current;
     const Map& tgt = forward ? current : reference;
     for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg))) {
-      if (forward) {
-        const Pose Ft = cp[static_cast<std::size_t>(m.target_id)].plane.frame();
-        m.T_target_source_local = Ft.inverse() * correction * Ft * m.T_target_source_local;
-      }
+      if (forward) m = corrected(m, current, correction);
       PlanePairResult res;
       auto c = compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
                                   mapsOf(!forward, m.target_id), refined, cfg, options, &res);

@@ -73,12 +73,36 @@ UpdateStats ChangeDetector::update(const Map& current) {
     return it->second.maps;
   };
 
+  // The session-wide localisation correction (see sessionCorrection), re-estimated only when a
+  // horizontal current plane it depends on changed.
+  const std::vector<PlaneMatch> forward_matches =
+      uniqueMatches(registerPlanes(reference_, current, cfg_));
+  if (cfg_.refine_inplane) {
+    std::vector<std::pair<int, std::uint64_t>> key;
+    for (const PlaneMatch& m : forward_matches) {
+      const PlaneSdf& p = cp[static_cast<std::size_t>(m.target_id)];
+      if (p.plane.orientation == Plane::Orientation::Horizontal)
+        key.emplace_back(m.target_id, p.volume.revision());
+    }
+    key.emplace_back(-1, cp.size());
+    if (key != correction_key_) {
+      correction_ = sessionCorrection(
+          reference_, current, forward_matches,
+          [&](bool ref, int id) -> const PlaneMaps& {
+            return ref ? reference_maps_[static_cast<std::size_t>(id)] : currentMaps(id);
+          },
+          cfg_);
+      correction_key_ = std::move(key);
+    }
+  }
+
   std::map<std::tuple<bool, int, int>, PairCache> next;
   RefinedTransforms refined;
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
     const Map& src = forward ? static_cast<const Map&>(reference_) : current;
     const Map& tgt = forward ? current : static_cast<const Map&>(reference_);
-    for (const PlaneMatch& m : uniqueMatches(registerPlanes(src, tgt, cfg_))) {
+    for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg_))) {
+      if (forward) m = corrected(m, current, correction_);
       const int ref_id = forward ? m.source_id : m.target_id;
       const int cur_id = forward ? m.target_id : m.source_id;
       const std::uint64_t rev = cp[static_cast<std::size_t>(cur_id)].volume.revision();
@@ -86,6 +110,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
       const auto it = pairs_.find(key);
       const auto maps_it = current_maps_.find(cur_id);
       if (it != pairs_.end() && it->second.current_revision == rev &&
+          it->second.correction.matrix() == correction_.matrix() &&
           maps_it != current_maps_.end() && maps_it->second.num_planes == cp.size()) {
         ++stats.pairs_reused;
         next[key] = it->second;
@@ -98,6 +123,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
       PlanePairResult res;
       PairCache pc;
       pc.current_revision = rev;
+      pc.correction = correction_;
       pc.candidates =
           compareMatchedPair(reference_, current, forward, m, forward ? ref_maps : cur_maps,
                              forward ? cur_maps : ref_maps, refined, cfg_, options_, &res);
