@@ -78,10 +78,10 @@ Sequence renderSession(const sim::Scene& scene, const sim::Session& session, int
     const std::uint64_t seed =
         (static_cast<std::uint64_t>(scene.seed) << 32) ^ (std::uint64_t(session_index) << 24) ^ i;
     s.frames.push_back(sim::renderDepth(scene, session, truth[i], seed));
+    if ((i + 1) % 10 == 0) std::cerr << "bench: " << label << " frame " << (i + 1) << "/" << n << "\n";
     s.poses.push_back(E * truth[i]);
-    std::cerr << "bench: rendered " << label << " frame " << (i + 1) << "/" << n << "\r";
   }
-  std::cerr << "\n";
+  std::cerr << "bench: rendered " << n << " " << label << " frames\n";
   return s;
 }
 

@@ -119,7 +119,7 @@ int main(int argc, char** argv) {
       "End-to-end benchmark on a simulated tabletop sequence (PlaneSDF vs OctoMap), or with "
       "--suite the comparison with the baselines on simulated and mOSD pairs");
   bench->add_option("--frames", bench_args.frames,
-                    "Frames per session (default: the whole sequence)");
+                    "Frames per session (default: the whole sequence; --suite: 12)");
   bench->add_option("--json", bench_args.json, "Write the figures as JSON (atomically)");
   bench->add_option("--suite", bench_args.suite,
                     "Run the comparison suite and write OUT_DIR/comparison.md and .json");
