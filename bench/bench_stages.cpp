@@ -77,10 +77,9 @@ struct Fixture {
 
   /// The reference plane with the most voxels (the table top).
   const planesdf::PlaneSdf& largestPlane() const {
-    return *std::max_element(reference.planes().begin(), reference.planes().end(),
-                             [](const auto& a, const auto& b) {
-                               return a.volume.numVoxels() < b.volume.numVoxels();
-                             });
+    return *std::max_element(
+        reference.planes().begin(), reference.planes().end(),
+        [](const auto& a, const auto& b) { return a.volume.numVoxels() < b.volume.numVoxels(); });
   }
 };
 
@@ -98,13 +97,12 @@ void BM_DetectPlanesFrame(benchmark::State& state) {
   std::size_t k = 0, planes = 0;
   for (auto _ : state) {
     const std::size_t i = k++ % clouds.size();
-    const auto obs =
-        planesdf::detectPlanesRansac(clouds[i], f.poses[4 * i].translation(), f.cfg);
+    const auto obs = planesdf::detectPlanesRansac(clouds[i], f.poses[4 * i].translation(), f.cfg);
     planes += obs.size();
     benchmark::DoNotOptimize(obs.data());
   }
-  state.counters["planes"] = benchmark::Counter(static_cast<double>(planes),
-                                                benchmark::Counter::kAvgIterations);
+  state.counters["planes"] =
+      benchmark::Counter(static_cast<double>(planes), benchmark::Counter::kAvgIterations);
 }
 BENCHMARK(BM_DetectPlanesFrame)->Unit(benchmark::kMillisecond);
 

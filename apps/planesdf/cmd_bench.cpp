@@ -71,14 +71,15 @@ Sequence renderSession(const sim::Scene& scene, const sim::Session& session, int
                        int max_frames, const std::string& label) {
   const std::vector<Pose> truth = sim::trajectoryPoses(session.trajectory);
   const Pose E = sim::localisationErrorPose(session.localisation_error);
-  const std::size_t n = max_frames > 0 ? std::min<std::size_t>(truth.size(), max_frames)
-                                       : truth.size();
+  const std::size_t n =
+      max_frames > 0 ? std::min<std::size_t>(truth.size(), max_frames) : truth.size();
   Sequence s;
   for (std::size_t i = 0; i < n; ++i) {
     const std::uint64_t seed =
         (static_cast<std::uint64_t>(scene.seed) << 32) ^ (std::uint64_t(session_index) << 24) ^ i;
     s.frames.push_back(sim::renderDepth(scene, session, truth[i], seed));
-    if ((i + 1) % 10 == 0) std::cerr << "bench: " << label << " frame " << (i + 1) << "/" << n << "\n";
+    if ((i + 1) % 10 == 0)
+      std::cerr << "bench: " << label << " frame " << (i + 1) << "/" << n << "\n";
     s.poses.push_back(E * truth[i]);
   }
   std::cerr << "bench: rendered " << n << " " << label << " frames\n";
@@ -117,8 +118,7 @@ int runSingleBench(const BenchArgs& args) {
   const auto td = Clock::now();
   const ChangeSet set = detectChanges(reference, current, cfg);
   const double detect_ms = msSince(td);
-  std::cerr << "bench: detectChanges " << detect_ms << " ms, " << set.events.size()
-            << " events\n";
+  std::cerr << "bench: detectChanges " << detect_ms << " ms, " << set.events.size() << " events\n";
 
   std::vector<double> octomap_ms;
   std::string octomap_note;
@@ -165,9 +165,9 @@ int runSingleBench(const BenchArgs& args) {
   j["voxels"] = mapVoxels(reference);
   j["planes"] = reference.planes().size();
 
-  std::printf("planesdf bench: tabletop seed %u, %zu frames of %dx%d, voxel %.1f mm\n",
-              kBenchSeed, ref.frames.size(), scene.sensor.intrinsics.width,
-              scene.sensor.intrinsics.height, cfg.voxel_size * 1000);
+  std::printf("planesdf bench: tabletop seed %u, %zu frames of %dx%d, voxel %.1f mm\n", kBenchSeed,
+              ref.frames.size(), scene.sensor.intrinsics.width, scene.sensor.intrinsics.height,
+              cfg.voxel_size * 1000);
   std::printf("  %-34s %10s %10s\n", "", "median", "p95");
   std::printf("  %-34s %10.1f %10.1f ms\n", "planesdf Map::integrate / frame",
               quantile(integrate_ms, 0.5), quantile(integrate_ms, 0.95));

@@ -159,9 +159,9 @@ const sim::ChangeKind kKinds[] = {sim::ChangeKind::None,      sim::ChangeKind::A
                                   sim::ChangeKind::SmallMove, sim::ChangeKind::Swap,
                                   sim::ChangeKind::Replace};
 constexpr int kNumKinds = 7;
-constexpr int kDriftSteps = 5;         // 0, 0.75, 1.5, 2.25, 3 cm
-constexpr double kMaxDrift = 0.03;     // m
-constexpr double kMaxDriftDeg = 1.0;   // rotation about the vertical at the largest drift
+constexpr int kDriftSteps = 5;        // 0, 0.75, 1.5, 2.25, 3 cm
+constexpr double kMaxDrift = 0.03;    // m
+constexpr double kMaxDriftDeg = 1.0;  // rotation about the vertical at the largest drift
 constexpr std::uint32_t kSeed0 = 1000;
 constexpr int kSuiteFrames = 12;  // frames per session (a full orbit, one view every 30 degrees)
 
@@ -230,13 +230,13 @@ std::vector<PairRecord> runMosd(const std::string& root, const BenchArgs& args) 
     const std::string base = args.mosd_dir + "/";
     SessionInput ref{io::readSceneCloud(base + r), true, nullptr};
     SessionInput cur{io::readSceneCloud(base + c), true, nullptr};
-    const std::string name = std::filesystem::path(r).stem().string() + "__" +
-                             std::filesystem::path(c).stem().string();
-    PairRecord rec = runPair(root + "/" + name, ref, cur, io::readPly(base + gr),
-                             io::readPly(base + gc), args);
+    const std::string name =
+        std::filesystem::path(r).stem().string() + "__" + std::filesystem::path(c).stem().string();
+    PairRecord rec =
+        runPair(root + "/" + name, ref, cur, io::readPly(base + gr), io::readPly(base + gc), args);
     rec.name = name;
-    logPair("mosd " + std::to_string(out.size() + 1) + "/" + std::to_string(args.mosd_pairs) +
-                " " + name,
+    logPair("mosd " + std::to_string(out.size() + 1) + "/" + std::to_string(args.mosd_pairs) + " " +
+                name,
             rec);
     out.push_back(std::move(rec));
   }
@@ -311,8 +311,11 @@ std::string table(const std::vector<PairRecord>& pairs) {
 }
 
 json sideJson(const SideScore& s) {
-  return {{"precision", s.precision}, {"recall", s.recall}, {"f1", s.f1},
-          {"missed", s.missed},       {"wrong", s.wrong}};
+  return {{"precision", s.precision},
+          {"recall", s.recall},
+          {"f1", s.f1},
+          {"missed", s.missed},
+          {"wrong", s.wrong}};
 }
 
 json datasetJson(const std::vector<PairRecord>& pairs) {
@@ -321,10 +324,17 @@ json datasetJson(const std::vector<PairRecord>& pairs) {
   json summary = json::object();
   for (const std::string& m : methods()) {
     const Summary s = summarise(pairs, m);
-    summary[m] = {{"precision", s.pr}, {"precision_sd", s.pr_sd}, {"recall", s.re},
-                  {"recall_sd", s.re_sd}, {"f1", s.f1}, {"f1_sd", s.f1_sd},
-                  {"missed_per_pair", s.m}, {"wrong_per_pair", s.w}, {"missed_total", s.m_total},
-                  {"wrong_total", s.w_total}, {"seconds_per_pair", s.seconds}};
+    summary[m] = {{"precision", s.pr},
+                  {"precision_sd", s.pr_sd},
+                  {"recall", s.re},
+                  {"recall_sd", s.re_sd},
+                  {"f1", s.f1},
+                  {"f1_sd", s.f1_sd},
+                  {"missed_per_pair", s.m},
+                  {"wrong_per_pair", s.w},
+                  {"missed_total", s.m_total},
+                  {"wrong_total", s.w_total},
+                  {"seconds_per_pair", s.seconds}};
   }
   j["summary"] = summary;
   json per = json::array();
@@ -366,7 +376,8 @@ int runSuite(const BenchArgs& args) {
   md << "# Change detection comparison (planesdf bench --suite)\n\n"
      << "Means per pair (± standard deviation) of the pooled point-level precision, recall and F1 "
         "of `planesdf eval` (match distance 7 mm); M and W are means per pair (totals in "
-        "brackets); runtime is wall time per pair (PlaneSDF: both maps and detectChanges; point distance: downsampling, tests and clustering; OctoMap: both trees "
+        "brackets); runtime is wall time per pair (PlaneSDF: both maps and detectChanges; point "
+        "distance: downsampling, tests and clustering; OctoMap: both trees "
         "and the differencing), on whatever machine ran it.\n\n"
      << "## Simulated tabletop pairs (" << simulated.size() << ")\n\n"
      << "Kinds none, add, remove, move, small_move, swap, replace in turn; localisation drift "

@@ -129,8 +129,9 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   bench->add_option("--mosd", bench_args.mosd_dir, "Suite: the mOSD folder (holds pairs.tsv)")
       ->capture_default_str();
-  bench->add_option("--octomap-stride", bench_args.octomap_stride,
-                    "Suite: pixel stride of simulated frames inserted into OctoMap")
+  bench
+      ->add_option("--octomap-stride", bench_args.octomap_stride,
+                   "Suite: pixel stride of simulated frames inserted into OctoMap")
       ->capture_default_str();
 
   // info (ours, beyond DESIGN §3): check that an input loads and show what it holds

@@ -217,7 +217,8 @@ void writeBaselineOutputs(const std::string& dir, const BaselineResult& result) 
   std::filesystem::create_directories(dir, ec);
   if (ec) throw Error(dir, "cannot create the output folder: " + ec.message());
   const auto withField = [](PointCloud c) {
-    if (c.field(kChangeIdField) == nullptr) c.fields.push_back({kChangeIdField, ScalarType::Int32, {}});
+    if (c.field(kChangeIdField) == nullptr)
+      c.fields.push_back({kChangeIdField, ScalarType::Int32, {}});
     c.width = static_cast<std::uint32_t>(c.size());
     c.height = 1;
     return c;

@@ -86,11 +86,11 @@ TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
         expectRates(e.at("added"), name + " " + m + " added");
         EXPECT_GT(e.at("ms").get<double>(), 0.0) << name << " " << m;
         // The outputs were written in the detect format and exist.
-        const std::string sub = m == "PlaneSDF" ? "planesdf"
+        const std::string sub = m == "PlaneSDF"  ? "planesdf"
                                 : m == "OctoMap" ? "octomap"
                                                  : "point_distance";
-        const std::string base = dir + "/" + (std::string(set) == "mosd" ? "mosd" : "sim") +
-                                 "/" + name + "/" + sub;
+        const std::string base =
+            dir + "/" + (std::string(set) == "mosd" ? "mosd" : "sim") + "/" + name + "/" + sub;
         EXPECT_TRUE(std::filesystem::exists(base + "/removed_points.ply")) << base;
         EXPECT_TRUE(std::filesystem::exists(base + "/added_points.ply")) << base;
       }

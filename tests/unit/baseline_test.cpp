@@ -82,7 +82,9 @@ TEST(PointDistanceBaseline, ARemovedBoxIsExactlyItsPointsAwayFromThePlane) {
       ++must;
       EXPECT_TRUE(in) << p.transpose();
     }
-    if (p.z() < params.distance - slack) EXPECT_FALSE(in) << p.transpose();
+    if (p.z() < params.distance - slack) {
+      EXPECT_FALSE(in) << p.transpose();
+    }
   }
   EXPECT_GT(must, 1000);
   const planesdf::ScalarField* ids = r.removed.field(planesdf::kChangeIdField);
@@ -125,10 +127,10 @@ TEST(PointDistanceBaseline, AnAddedBoxIsAddedAndScoresPerfectly) {
 
 TEST(PointDistanceBaseline, EuclideanClustersSplitsAndDropsSmallClusters) {
   std::vector<Eigen::Vector3f> p;
-  for (int i = 0; i < 20; ++i) p.emplace_back(0.01f * i, 0.0f, 0.0f);          // one chain
-  for (int i = 0; i < 20; ++i) p.emplace_back(1.0f + 0.01f * i, 0.0f, 0.0f);   // another
-  for (int i = 0; i < 3; ++i) p.emplace_back(5.0f + 0.01f * i, 0.0f, 0.0f);    // too small
-  p.emplace_back(std::nanf(""), 0.0f, 0.0f);                                    // invalid
+  for (int i = 0; i < 20; ++i) p.emplace_back(0.01f * i, 0.0f, 0.0f);         // one chain
+  for (int i = 0; i < 20; ++i) p.emplace_back(1.0f + 0.01f * i, 0.0f, 0.0f);  // another
+  for (int i = 0; i < 3; ++i) p.emplace_back(5.0f + 0.01f * i, 0.0f, 0.0f);   // too small
+  p.emplace_back(std::nanf(""), 0.0f, 0.0f);                                  // invalid
   const std::vector<int> label = planesdf::euclideanClusters(p, 0.015, 5);
   ASSERT_EQ(label.size(), p.size());
   for (int i = 0; i < 20; ++i) EXPECT_EQ(label[i], 0);

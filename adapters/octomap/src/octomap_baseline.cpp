@@ -69,8 +69,8 @@ double OccupancyMap::insertFrame(const DepthFrame& frame, const Pose& camera_to_
       const Eigen::Vector3f q = R * p + t;
       pc.push_back(q.x(), q.y(), q.z());
     }
-  impl_->tree.insertPointCloud(pc, octomap::point3d(t.x(), t.y(), t.z()), options_.max_range,
-                               false, options_.discretize);
+  impl_->tree.insertPointCloud(pc, octomap::point3d(t.x(), t.y(), t.z()), options_.max_range, false,
+                               options_.discretize);
   return msSince(t0);
 }
 
@@ -88,9 +88,9 @@ std::size_t OccupancyMap::memoryBytes() const {
   return impl_->tree.memoryUsage();
 }
 
-BaselineResult octomapBaseline(const PointCloud& reference_points, const OccupancyMap& reference_map,
-                               const PointCloud& current_points, const OccupancyMap& current_map,
-                               const BaselineParams& params) {
+BaselineResult octomapBaseline(const PointCloud& reference_points,
+                               const OccupancyMap& reference_map, const PointCloud& current_points,
+                               const OccupancyMap& current_map, const BaselineParams& params) {
   if (!(std::isfinite(params.voxel) && params.voxel > 0.0) || !(params.cluster_distance > 0.0) ||
       params.min_cluster_cells < 1)
     throw Error("baseline", "invalid parameters (voxel, cluster_distance, min_cluster_cells)");

@@ -61,8 +61,8 @@ class OccupancyMap {
 /// Occupancy differencing (see the file comment): `reference_points` / `current_points` are the
 /// sessions' scene points in the world frame (what the outputs report); `reference_map` /
 /// `current_map` their trees. The tree building is not included in milliseconds.
-BaselineResult octomapBaseline(const PointCloud& reference_points, const OccupancyMap& reference_map,
-                               const PointCloud& current_points, const OccupancyMap& current_map,
-                               const BaselineParams& params = {});
+BaselineResult octomapBaseline(const PointCloud& reference_points,
+                               const OccupancyMap& reference_map, const PointCloud& current_points,
+                               const OccupancyMap& current_map, const BaselineParams& params = {});
 
 }  // namespace planesdf::octomap_adapter
