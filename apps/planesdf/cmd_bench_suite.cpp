@@ -189,7 +189,8 @@ std::vector<PairRecord> runSimulated(const std::string& root, const BenchArgs& a
     const sim::Simulation s = sim::simulate(scene);
     const double sim_ms = msSince(t0);
     char name[64];
-    std::snprintf(name, sizeof name, "sim%02d_%s_%.1fcm", k, sim::toString(kind), f * 300.0);
+    std::snprintf(name, sizeof name, "sim%02d_%s_%.1fcm", k, sim::toString(kind),
+                  f * kMaxDrift * 100.0);
     SessionInput ref{s.reference.cloud, false, &s.reference};
     SessionInput cur{s.current.cloud, false, &s.current};
     PairRecord rec = runPair(root + "/" + name, ref, cur, s.reference.gt, s.current.gt, args);
