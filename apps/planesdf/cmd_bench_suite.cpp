@@ -311,6 +311,45 @@ std::string table(const std::vector<PairRecord>& pairs) {
   return md.str();
 }
 
+/// Simulated pairs: mean pooled F1 and W per pair of each method, by change kind and by drift.
+std::string breakdown(const std::vector<PairRecord>& pairs) {
+  if (pairs.empty()) return "";
+  std::ostringstream md;
+  md << "| group | pairs |";
+  for (const std::string& m : methods()) md << " " << m << " F1 (W) |";
+  md << "\n|---|---|";
+  for (std::size_t i = 0; i < methods().size(); ++i) md << "---|";
+  md << "\n";
+  const auto rows = [&](const std::string& label, const auto& key) {
+    std::map<std::string, std::vector<const PairRecord*>> groups;
+    std::vector<std::string> order;
+    for (const PairRecord& p : pairs) {
+      const std::string k = key(p);
+      if (groups.find(k) == groups.end()) order.push_back(k);
+      groups[k].push_back(&p);
+    }
+    for (const std::string& k : order) {
+      std::vector<PairRecord> sub;
+      for (const PairRecord* p : groups[k]) sub.push_back(*p);
+      md << "| " << label << " " << k << " | " << sub.size() << " |";
+      for (const std::string& m : methods()) {
+        const Summary s = summarise(sub, m);
+        char cell[64];
+        std::snprintf(cell, sizeof cell, " %.2f (%.1f) |", s.f1, s.w);
+        md << cell;
+      }
+      md << "\n";
+    }
+  };
+  rows("kind", [](const PairRecord& p) { return p.kind; });
+  rows("drift", [](const PairRecord& p) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.2f cm", p.drift * 100.0);
+    return std::string(b);
+  });
+  return md.str();
+}
+
 json sideJson(const SideScore& s) {
   return {{"precision", s.precision},
           {"recall", s.recall},
@@ -389,7 +428,12 @@ int runSuite(const BenchArgs& args) {
      << args.octomap_stride
      << "th pixel in each direction, for speed), point distance compares the whole-scene clouds "
         "(`reference.ply`, `current.ply`).\n\n"
-     << table(simulated) << "\n## mOSD pairs (" << mosd.size() << ")\n\n"
+     << table(simulated)
+     << (simulated.empty() ? std::string()
+                           : "\nBy change kind and by localisation drift (mean F1, mean W per "
+                             "pair):\n\n" +
+                                 breakdown(simulated))
+     << "\n## mOSD pairs (" << mosd.size() << ")\n\n"
      << "Single organised Kinect views; OctoMap inserts each cloud from its sensor origin.\n\n"
      << table(mosd);
 #ifndef PLANESDF_HAVE_OCTOMAP
