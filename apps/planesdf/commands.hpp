@@ -78,4 +78,20 @@ struct DetectArgs {
 };
 int runDetect(const DetectArgs& args);
 
+/// Seed of the simulated tabletop sequence `planesdf bench` runs on (fixed, so runs compare).
+constexpr unsigned kBenchSeed = 7;
+
+struct BenchArgs {
+  int frames = 0;          ///< frames per session (0: the whole sequence; suite: 12)
+  std::string json;        ///< --json FILE
+  std::string suite;       ///< --suite DIR: the comparison suite instead of the benchmark
+  int sim_pairs = 35;      ///< suite: simulated pairs
+  int mosd_pairs = 21;     ///< suite: mOSD pairs (the first n of pairs.tsv)
+  std::string mosd_dir;    ///< suite: folder with pairs.tsv
+  int octomap_stride = 8;  ///< suite: pixel stride of simulated frames into OctoMap
+};
+int runBench(const BenchArgs& args);
+/// `bench --suite DIR` (cmd_bench_suite.cpp).
+int runSuite(const BenchArgs& args);
+
 }  // namespace planesdf::cli

@@ -1,1 +1,1 @@
-set(PLANESDF_EVAL_SOURCES eval.cpp)
+set(PLANESDF_EVAL_SOURCES eval.cpp baseline.cpp)

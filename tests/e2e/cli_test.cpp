@@ -100,11 +100,12 @@ TEST(Cli, InfoOnRealMosdScene) {
   EXPECT_NE(r.out.find("organised 640x480"), std::string::npos) << r.out;
 }
 
-TEST(Cli, UnfinishedSubcommandsSayNotImplemented) {
-  // Subcommands whose issue is not done must never fake output.
-  const auto r = runCli("bench");
-  EXPECT_EQ(r.exit_code, 2);
-  EXPECT_NE(r.out.find("not implemented yet"), std::string::npos) << r.out;
+TEST(Cli, BenchRejectsANegativeFrameCount) {
+  // `bench` itself is tested in bench_cli_test.cpp.
+  const auto r = runCli("bench --frames -1");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("--frames"), std::string::npos) << r.out;
+  EXPECT_EQ(countLines(r.out), 1) << r.out;
 }
 
 }  // namespace

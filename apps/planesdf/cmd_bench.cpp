@@ -1,0 +1,203 @@
+// `planesdf bench [--frames N] [--json FILE]`: the end-to-end benchmark of issue 7 on a fixed
+// simulated tabletop sequence (PlaneSDF integrate per frame, the same frames into an OctoMap
+// OcTree, one detectChanges), and `planesdf bench --suite DIR`: the paper-style comparison of
+// issue 5 (PlaneSDF, point-distance and OctoMap differencing on simulated and mOSD pairs).
+#include <sys/resource.h>
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include "commands.hpp"
+#include "planesdf/baseline.hpp"
+#include "planesdf/change.hpp"
+#include "planesdf/error.hpp"
+#include "planesdf/eval.hpp"
+#include "planesdf/io/atomic_file.hpp"
+#include "planesdf/io/cloud.hpp"
+#include "planesdf/io/ply.hpp"
+#include "planesdf/map.hpp"
+#include "planesdf/sim.hpp"
+#include "session_input.hpp"
+#ifdef PLANESDF_HAVE_OCTOMAP
+#include "planesdf/octomap/octomap_baseline.hpp"
+#endif
+
+namespace planesdf::cli {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using nlohmann::json;
+
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+/// The q-quantile (nearest rank, q in [0, 1]) of `v`; NaN when empty.
+double quantile(std::vector<double> v, double q) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const std::size_t k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size())));
+  return v[std::min(v.size() - 1, k == 0 ? 0 : k - 1)];
+}
+
+double peakRssMb() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+}
+
+json numberOrNull(double v) {
+  return std::isfinite(v) ? json(v) : json(nullptr);
+}
+
+void writeText(const std::string& path, const std::string& text) {
+  io::writeFileAtomic(path, [&](std::ostream& out) { out << text; });
+}
+
+/// The rendered frames and reported poses of one simulated session.
+struct Sequence {
+  std::vector<DepthFrame> frames;
+  std::vector<Pose> poses;
+};
+
+Sequence renderSession(const sim::Scene& scene, const sim::Session& session, int session_index,
+                       int max_frames, const std::string& label) {
+  const std::vector<Pose> truth = sim::trajectoryPoses(session.trajectory);
+  const Pose E = sim::localisationErrorPose(session.localisation_error);
+  const std::size_t n =
+      max_frames > 0 ? std::min<std::size_t>(truth.size(), max_frames) : truth.size();
+  Sequence s;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint64_t seed =
+        (static_cast<std::uint64_t>(scene.seed) << 32) ^ (std::uint64_t(session_index) << 24) ^ i;
+    s.frames.push_back(sim::renderDepth(scene, session, truth[i], seed));
+    if ((i + 1) % 10 == 0)
+      std::cerr << "bench: " << label << " frame " << (i + 1) << "/" << n << "\n";
+    s.poses.push_back(E * truth[i]);
+  }
+  std::cerr << "bench: rendered " << n << " " << label << " frames\n";
+  return s;
+}
+
+std::size_t mapVoxels(const Map& map) {
+  std::size_t n = 0;
+  for (const PlaneSdf& p : map.planes()) n += p.volume.numVoxels();
+  return n;
+}
+
+int runSingleBench(const BenchArgs& args) {
+  const sim::Scene scene = sim::makePreset("tabletop", kBenchSeed);
+  std::cerr << "bench: tabletop preset, seed " << kBenchSeed << ", 640x480 frames, voxel "
+            << Config{}.voxel_size * 1000 << " mm\n";
+  const Sequence ref = renderSession(scene, scene.reference, 0, args.frames, "reference");
+  const Sequence cur = renderSession(scene, scene.current, 1, args.frames, "current");
+
+  Config cfg;
+  std::vector<double> integrate_ms, current_ms;
+  Map reference(cfg), current(cfg);
+  for (std::size_t i = 0; i < ref.frames.size(); ++i) {
+    const auto t0 = Clock::now();
+    reference.integrate(ref.frames[i], ref.poses[i]);
+    integrate_ms.push_back(msSince(t0));
+    std::cerr << "bench: planesdf integrate " << (i + 1) << "/" << ref.frames.size() << ": "
+              << integrate_ms.back() << " ms\n";
+  }
+  for (std::size_t i = 0; i < cur.frames.size(); ++i) {
+    const auto t0 = Clock::now();
+    current.integrate(cur.frames[i], cur.poses[i]);
+    current_ms.push_back(msSince(t0));
+  }
+  const double rss_planesdf = peakRssMb();
+  const auto td = Clock::now();
+  const ChangeSet set = detectChanges(reference, current, cfg);
+  const double detect_ms = msSince(td);
+  std::cerr << "bench: detectChanges " << detect_ms << " ms, " << set.events.size() << " events\n";
+
+  std::vector<double> octomap_ms;
+  std::string octomap_note;
+  double octomap_bytes = std::nan("");
+#ifdef PLANESDF_HAVE_OCTOMAP
+  octomap_adapter::OccupancyOptions oo;
+  oo.resolution = cfg.voxel_size;
+  oo.max_range = cfg.max_depth;
+  octomap_adapter::OccupancyMap tree(oo);
+  for (std::size_t i = 0; i < ref.frames.size(); ++i) {
+    octomap_ms.push_back(tree.insertFrame(ref.frames[i], ref.poses[i]));
+    std::cerr << "bench: octomap insertPointCloud " << (i + 1) << "/" << ref.frames.size() << ": "
+              << octomap_ms.back() << " ms\n";
+  }
+  octomap_bytes = static_cast<double>(tree.memoryBytes());
+  octomap_note = "octomap::OcTree insertPointCloud from the camera centre, same frames, " +
+                 std::to_string(oo.resolution) + " m, max range " + std::to_string(oo.max_range) +
+                 " m, discretize on";
+#else
+  octomap_note = "the OctoMap adapter is not built (PLANESDF_BUILD_OCTOMAP=OFF)";
+#endif
+
+  json j;
+  j["scene"] = "tabletop";
+  j["seed"] = kBenchSeed;
+  j["frames"] = ref.frames.size();
+  j["width"] = scene.sensor.intrinsics.width;
+  j["height"] = scene.sensor.intrinsics.height;
+  j["voxel_size"] = cfg.voxel_size;
+  j["threads"] = cfg.threads;
+  j["integrate_ms_median"] = quantile(integrate_ms, 0.5);
+  j["integrate_ms_p95"] = quantile(integrate_ms, 0.95);
+  j["integrate_ms_max"] = quantile(integrate_ms, 1.0);
+  j["current_integrate_ms_median"] = numberOrNull(quantile(current_ms, 0.5));
+  j["octomap_ms_median"] = numberOrNull(quantile(octomap_ms, 0.5));
+  j["octomap_ms_p95"] = numberOrNull(quantile(octomap_ms, 0.95));
+  j["octomap_bytes"] = numberOrNull(octomap_bytes);
+  j["octomap_note"] = octomap_note;
+  j["detect_ms"] = detect_ms;
+  j["events"] = set.events.size();
+  j["peak_rss_mb"] = peakRssMb();
+  j["peak_rss_mb_before_octomap"] = rss_planesdf;
+  j["map_bytes"] = reference.memoryBytes();
+  j["voxels"] = mapVoxels(reference);
+  j["planes"] = reference.planes().size();
+
+  std::printf("planesdf bench: tabletop seed %u, %zu frames of %dx%d, voxel %.1f mm\n", kBenchSeed,
+              ref.frames.size(), scene.sensor.intrinsics.width, scene.sensor.intrinsics.height,
+              cfg.voxel_size * 1000);
+  std::printf("  %-34s %10s %10s\n", "", "median", "p95");
+  std::printf("  %-34s %10.1f %10.1f ms\n", "planesdf Map::integrate / frame",
+              quantile(integrate_ms, 0.5), quantile(integrate_ms, 0.95));
+  if (!octomap_ms.empty())
+    std::printf("  %-34s %10.1f %10.1f ms\n", "octomap insertPointCloud / frame",
+                quantile(octomap_ms, 0.5), quantile(octomap_ms, 0.95));
+  else
+    std::printf("  octomap: n/a (%s)\n", octomap_note.c_str());
+  std::printf("  %-34s %10.1f ms (%zu events)\n", "detectChanges (one scene pair)", detect_ms,
+              set.events.size());
+  std::printf("  %-34s %10.1f MB\n", "map memory (reference)",
+              static_cast<double>(reference.memoryBytes()) / 1e6);
+  if (std::isfinite(octomap_bytes))
+    std::printf("  %-34s %10.1f MB\n", "octomap memory", octomap_bytes / 1e6);
+  std::printf("  %-34s %10zu in %zu planes\n", "voxels", mapVoxels(reference),
+              reference.planes().size());
+  std::printf("  %-34s %10.1f MB\n", "peak RSS", peakRssMb());
+  if (!args.json.empty()) {
+    writeText(args.json, j.dump(2) + "\n");
+    std::printf("-> %s\n", args.json.c_str());
+  }
+  return kExitOk;
+}
+
+}  // namespace
+
+int runBench(const BenchArgs& args) {
+  if (args.frames < 0) throw Error("--frames", "must be at least 1 (or 0 for all)");
+  if (!args.suite.empty()) return runSuite(args);
+  return runSingleBench(args);
+}
+
+}  // namespace planesdf::cli
