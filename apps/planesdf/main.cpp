@@ -2,7 +2,7 @@
 // subcommand lives in cmd_<name>.cpp.
 //
 // Exit codes: 0 success; 1 bad input or a failed run (one line on stderr naming the file and
-// what is wrong); 2 usage error or a subcommand that is not implemented yet.
+// what is wrong); 2 usage error.
 
 #include <CLI/CLI.hpp>
 
@@ -41,11 +41,6 @@ void addPipelineOptions(CLI::App* app, PipelineArgs& o) {
   addParam(app, o, "--threads", &Config::threads, "Threads (0 = all cores)");
   app->add_option("--intrinsics", o.intrinsics,
                   "fx,fy,cx,cy[,width,height] for TUM folders without intrinsics.txt");
-}
-
-int notImplemented(const std::string& command, const std::string& issue) {
-  std::cerr << "planesdf " << command << ": not implemented yet (" << issue << ")\n";
-  return kExitUsage;
 }
 
 }  // namespace
