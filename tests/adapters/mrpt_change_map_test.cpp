@@ -24,24 +24,18 @@ namespace ma = planesdf::mrpt_adapter;
 using test::AnalyticScene;
 using test::Primitive;
 
-constexpr double kTable = 0.75;
+constexpr double kTable = test::kTableTop;
 
-AnalyticScene table(std::vector<Primitive> objects) {
-  AnalyticScene s;
-  s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  s.primitives.push_back(Primitive::box({-0.6, -0.4, 0.72}, {0.6, 0.4, kTable}));
-  for (auto& o : objects) s.primitives.push_back(o);
-  return s;
-}
 const AnalyticScene& before() {
   static const AnalyticScene s =
-      table({Primitive::box({0.05, 0.02, kTable}, {0.15, 0.08, kTable + 0.08}),
-             Primitive::cylinder({-0.15, -0.10, kTable}, 0.04, 0.12)});
+      test::tableWith({Primitive::box({0.05, 0.02, kTable}, {0.15, 0.08, kTable + 0.08}),
+                       Primitive::cylinder({-0.15, -0.10, kTable}, 0.04, 0.12)});
   return s;
 }
 const AnalyticScene& after() {
-  static const AnalyticScene s = table({Primitive::sphere({-0.12, 0.15, kTable + 0.05}, 0.05),
-                                        Primitive::cylinder({0.05, -0.10, kTable}, 0.04, 0.12)});
+  static const AnalyticScene s =
+      test::tableWith({Primitive::sphere({-0.12, 0.15, kTable + 0.05}, 0.05),
+                       Primitive::cylinder({0.05, -0.10, kTable}, 0.04, 0.12)});
   return s;
 }
 std::vector<Pose> ring() {

@@ -248,20 +248,15 @@ TEST(MrptRawlog, CliDetectsChangesBetweenTwoRawlogs) {
   // Runs in the Release pass; builds without the CLI (the sanitizer pass) cannot run it.
   if (planesdf::test::cliPath().empty()) GTEST_SKIP() << "the planesdf CLI is not built";
   using planesdf::test::Primitive;
-  const auto table = [](std::vector<Primitive> objects) {
-    planesdf::test::AnalyticScene s;
-    s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-    s.primitives.push_back(Primitive::box({-0.6, -0.4, 0.72}, {0.6, 0.4, 0.75}));
-    for (auto& o : objects) s.primitives.push_back(o);
-    return s;
-  };
   planesdf::test::TempDir dir;
   const std::string before = dir.path() + "/before.rawlog", after = dir.path() + "/after.rawlog";
   // The box is removed, a sphere is added, the cylinder moved 20 cm.
-  writeSessionRawlog(before, table({Primitive::box({0.05, 0.02, 0.75}, {0.15, 0.08, 0.83}),
-                                    Primitive::cylinder({-0.15, -0.10, 0.75}, 0.04, 0.12)}));
-  writeSessionRawlog(after, table({Primitive::sphere({-0.12, 0.15, 0.80}, 0.05),
-                                   Primitive::cylinder({0.05, -0.10, 0.75}, 0.04, 0.12)}));
+  writeSessionRawlog(
+      before, planesdf::test::tableWith({Primitive::box({0.05, 0.02, 0.75}, {0.15, 0.08, 0.83}),
+                                         Primitive::cylinder({-0.15, -0.10, 0.75}, 0.04, 0.12)}));
+  writeSessionRawlog(
+      after, planesdf::test::tableWith({Primitive::sphere({-0.12, 0.15, 0.80}, 0.05),
+                                        Primitive::cylinder({0.05, -0.10, 0.75}, 0.04, 0.12)}));
   const auto r =
       planesdf::test::runCli("detect " + before + " " + after + " --out " + dir.path() + "/out");
   ASSERT_EQ(r.exit_code, 0) << r.out;

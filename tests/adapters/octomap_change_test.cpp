@@ -21,25 +21,18 @@ namespace oa = planesdf::octomap_adapter;
 using test::AnalyticScene;
 using test::Primitive;
 
-constexpr double kTable = 0.75;
+constexpr double kTable = test::kTableTop;
 constexpr double kRes = 0.02;
 
-AnalyticScene table(std::vector<Primitive> objects) {
-  AnalyticScene s;
-  s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  s.primitives.push_back(Primitive::box({-0.6, -0.4, 0.72}, {0.6, 0.4, kTable}));
-  for (auto& o : objects) s.primitives.push_back(o);
-  return s;
-}
 const Eigen::Vector3d kBoxCentre(0.10, 0.05, kTable + 0.04);
 const Eigen::Vector3d kSphereCentre(-0.12, 0.15, kTable + 0.05);
 AnalyticScene before() {
-  return table({Primitive::box({0.05, 0.02, kTable}, {0.15, 0.08, kTable + 0.08}),
-                Primitive::cylinder({-0.15, -0.10, kTable}, 0.04, 0.12)});
+  return test::tableWith({Primitive::box({0.05, 0.02, kTable}, {0.15, 0.08, kTable + 0.08}),
+                          Primitive::cylinder({-0.15, -0.10, kTable}, 0.04, 0.12)});
 }
 AnalyticScene after() {
-  return table({Primitive::sphere(kSphereCentre, 0.05),
-                Primitive::cylinder({0.05, -0.10, kTable}, 0.04, 0.12)});
+  return test::tableWith({Primitive::sphere(kSphereCentre, 0.05),
+                          Primitive::cylinder({0.05, -0.10, kTable}, 0.04, 0.12)});
 }
 
 struct Fixture {

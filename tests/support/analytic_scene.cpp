@@ -1,5 +1,7 @@
 #include "analytic_scene.hpp"
 
+#include <utility>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -146,6 +148,14 @@ double AnalyticScene::sdf(const Eigen::Vector3d& p) const {
   double best = kInf;
   for (const auto& q : primitives) best = std::min(best, q.sdf(p));
   return best;
+}
+
+AnalyticScene tableWith(std::vector<Primitive> objects) {
+  AnalyticScene s;
+  s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));  // floor
+  s.primitives.push_back(Primitive::box({-0.6, -0.4, kTableTop - 0.03}, {0.6, 0.4, kTableTop}));
+  for (auto& o : objects) s.primitives.push_back(std::move(o));
+  return s;
 }
 
 Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target, const Eigen::Vector3d& up) {

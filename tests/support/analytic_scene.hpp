@@ -42,6 +42,13 @@ struct AnalyticScene {
   double sdf(const Eigen::Vector3d& p) const;
 };
 
+/// Height of the top of tableWith()'s table (m).
+inline constexpr double kTableTop = 0.75;
+
+/// The tests' tabletop: a floor at z = 0 and a 1.2 x 0.8 m table top (3 cm thick, top at
+/// kTableTop) centred on the origin, plus `objects`.
+AnalyticScene tableWith(std::vector<Primitive> objects);
+
 /// Camera-to-world pose (OpenCV optical axes) of a camera at `eye` looking at `target`, with
 /// `up` the world up direction (image y points against it).
 Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target,

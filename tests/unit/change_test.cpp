@@ -21,7 +21,7 @@ using namespace planesdf;
 using test::AnalyticScene;
 using test::Primitive;
 
-constexpr double kTable = 0.75;
+constexpr double kTable = test::kTableTop;
 
 // Objects on the table (z = 0.75): a 10 x 6 x 8 cm box, a cylinder r 4 cm h 12 cm, a sphere
 // r 5 cm, and the cylinder moved by 20 cm.
@@ -33,14 +33,6 @@ Primitive cylinderAt(double x, double y) {
 }
 Primitive sphere() {
   return Primitive::sphere({-0.12, 0.15, kTable + 0.05}, 0.05);
-}
-
-AnalyticScene table(std::vector<Primitive> objects) {
-  AnalyticScene s;
-  s.primitives.push_back(Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));  // floor
-  s.primitives.push_back(Primitive::box({-0.6, -0.4, 0.72}, {0.6, 0.4, kTable}));
-  for (auto& o : objects) s.primitives.push_back(o);
-  return s;
 }
 
 /// A session: `n` views on a ring around the table, poses displaced by `drift` (applied to the
@@ -67,12 +59,12 @@ double maxSurfaceDistance(const ChangeRegion& r, const Primitive& p) {
 }
 
 const Map& beforeMap() {
-  static const Map m = session(table({box(), cylinderAt(-0.15, -0.10)}));
+  static const Map m = session(test::tableWith({box(), cylinderAt(-0.15, -0.10)}));
   return m;
 }
 // After: the box is gone, a sphere is new, the cylinder moved 20 cm along +x.
 const AnalyticScene& afterScene() {
-  static const AnalyticScene s = table({sphere(), cylinderAt(0.05, -0.10)});
+  static const AnalyticScene s = test::tableWith({sphere(), cylinderAt(0.05, -0.10)});
   return s;
 }
 const Map& afterMap() {
@@ -90,7 +82,7 @@ TEST(DetectChanges, ASecondSessionWithLocalisationDriftHasNoChange) {
   Pose drift = Pose::Identity();
   drift.linear() = Eigen::AngleAxisd(1.5 * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   drift.translation() = Eigen::Vector3d(0.02, -0.01, 0.0);
-  const Map drifted = session(table({box(), cylinderAt(-0.15, -0.10)}), 8, drift);
+  const Map drifted = session(test::tableWith({box(), cylinderAt(-0.15, -0.10)}), 8, drift);
   const ChangeSet s = detectChanges(beforeMap(), drifted, Config{});
   EXPECT_TRUE(s.events.empty()) << s.events.size() << " events, first: "
                                 << (s.events.empty() ? "" : toString(s.events[0].type));
@@ -224,8 +216,8 @@ TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
   det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
   Map cur{Config{}};
   const Intrinsics k;
-  const AnalyticScene without = table({cylinderAt(-0.15, -0.10)});
-  const AnalyticScene with = table({box(), cylinderAt(-0.15, -0.10)});
+  const AnalyticScene without = test::tableWith({cylinderAt(-0.15, -0.10)});
+  const AnalyticScene with = test::tableWith({box(), cylinderAt(-0.15, -0.10)});
   for (const Pose& T : test::ringPoses({0, 0, kTable}, 0.9, 0.55, 4))
     cur.integrate(test::renderDepth(without, k, T), T);
   det.update(cur);
