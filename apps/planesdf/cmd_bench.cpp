@@ -25,6 +25,7 @@
 #include "planesdf/map.hpp"
 #include "planesdf/sim.hpp"
 #include "session_input.hpp"
+#include "timing.hpp"
 #ifdef PLANESDF_HAVE_OCTOMAP
 #include "planesdf/octomap/octomap_baseline.hpp"
 #endif
@@ -32,20 +33,7 @@
 namespace planesdf::cli {
 namespace {
 
-using Clock = std::chrono::steady_clock;
 using nlohmann::json;
-
-double msSince(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
-
-/// The q-quantile (nearest rank, q in [0, 1]) of `v`; NaN when empty.
-double quantile(std::vector<double> v, double q) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  const std::size_t k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size())));
-  return v[std::min(v.size() - 1, k == 0 ? 0 : k - 1)];
-}
 
 double peakRssMb() {
   rusage u{};

@@ -23,6 +23,7 @@
 #include "planesdf/io/ply.hpp"
 #include "planesdf/map.hpp"
 #include "planesdf/sim.hpp"
+#include "timing.hpp"
 #ifdef PLANESDF_HAVE_OCTOMAP
 #include "planesdf/octomap/octomap_baseline.hpp"
 #endif
@@ -30,12 +31,7 @@
 namespace planesdf::cli {
 namespace {
 
-using Clock = std::chrono::steady_clock;
 using nlohmann::json;
-
-double msSince(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
 
 const char* const kPlaneSdf = "PlaneSDF";
 const char* const kPointDistance = "Point distance";

@@ -21,23 +21,12 @@
 #include "planesdf/io/ply.hpp"
 #include "planesdf/map.hpp"
 #include "planesdf/sim.hpp"
+#include "timing.hpp"
 
 namespace planesdf::cli {
 namespace {
 
 namespace fs = std::filesystem;
-using Clock = std::chrono::steady_clock;
-
-double msSince(Clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0.0;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
-}
 
 struct Fused {
   Map map;
@@ -154,7 +143,7 @@ int runDemo(const DemoArgs& args) {
   timing["simulate_ms"] = simulate_ms;
   timing["fuse_ms"] = fuse_ms;
   timing["frames"] = all_ms.size();
-  timing["integrate_ms_median"] = median(all_ms);
+  timing["integrate_ms_median"] = quantile(all_ms, 0.5);
   timing["detect_ms"] = set.milliseconds;
   timing["total_ms"] = msSince(t_start);
 
@@ -189,7 +178,7 @@ int runDemo(const DemoArgs& args) {
     std::printf("%-8s %6.3f %6.3f %6.3f %4d %4d\n", name, s.precision, s.recall, s.f1, s.missed,
                 s.wrong);
   std::printf("%zu events; integrate %.1f ms/frame (median of %zu), detect %.0f ms, total %.1f s\n",
-              set.events.size(), median(all_ms), all_ms.size(), set.milliseconds,
+              set.events.size(), quantile(all_ms, 0.5), all_ms.size(), set.milliseconds,
               msSince(t_start) / 1000.0);
   std::printf("report: %s, %s\n", (out / "report.md").string().c_str(),
               (out / "report.json").string().c_str());

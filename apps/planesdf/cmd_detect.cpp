@@ -8,20 +8,13 @@
 #include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 #include "session_input.hpp"
+#include "timing.hpp"
 
 namespace planesdf::cli {
-namespace {
-
-double msSince(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-}
-
-}  // namespace
-
 int runDetect(const DetectArgs& args) {
   const Config cfg = resolveConfig(args.pipeline);
   const bool up_defaulted = upDefaulted(args.pipeline);
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = Clock::now();
   const Map reference =
       loadSession(args.reference, cfg, args.pipeline.intrinsics, "reference", up_defaulted);
   const Map current =
@@ -37,7 +30,7 @@ int runDetect(const DetectArgs& args) {
   DetectOptions options;
   options.keep_stages = true;
   const ChangeSet set = detectChanges(reference, current, cfg, options);
-  const auto tw = std::chrono::steady_clock::now();
+  const auto tw = Clock::now();
   writeChangeOutputs(args.out, set);
   const double write_ms = msSince(tw);
 
