@@ -60,6 +60,7 @@ const std::vector<Param>& params() {
       {"delta_blob", &Config::delta_blob},
       {"plane_merge_extent_gap", &Config::plane_merge_extent_gap},
       {"ransac_max_samples", &Config::ransac_max_samples},
+      {"track_pixel_stride", &Config::track_pixel_stride},
       {"plane_reservoir_size", &Config::plane_reservoir_size},
       {"normal_window", &Config::normal_window},
       {"plane_connect_cell", &Config::plane_connect_cell},

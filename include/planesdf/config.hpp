@@ -35,6 +35,9 @@ struct Config {
   int ransac_max_samples = 2000;
   /// Inliers kept per global plane for refinement (a uniform reservoir sample; bounds memory).
   int plane_reservoir_size = 20000;
+  /// Map::integrate(DepthFrame): plane tracking sees every n-th pixel of every n-th row (plane
+  /// parameters need far fewer points than fusion, which always reads every pixel).
+  int track_pixel_stride = 1;
 
   // --- plane detection, whole cloud ------------------------------------------------------------
   int normal_knn = 20;           ///< k for PCA normals
@@ -52,9 +55,12 @@ struct Config {
   double orientation_tolerance_deg = 10.0;  ///< horizontal / vertical w.r.t. up
 
   // --- plane refinement (Ceres) ---------------------------------------------------------------
-  double refine_loss_scale = 0.01;    ///< robust loss scale (m)
-  int refine_min_new_inliers = 5000;  ///< re-run when a plane gained this many inliers
-  int refine_max_points = 10000;      ///< refinement uses at most this many points (subsampled)
+  double refine_loss_scale = 0.01;  ///< robust loss scale (m)
+  /// Re-run when a plane gained this many inliers (of the points tracking sees, see
+  /// track_pixel_stride), and at least half as many as it had at its last refinement
+  /// (refinements thin out geometrically as the reservoir settles).
+  int refine_min_new_inliers = 1000;
+  int refine_max_points = 10000;  ///< refinement uses at most this many points (subsampled)
 
   // --- PlaneSDF fusion
   // ----------------------------------------------------------------------------

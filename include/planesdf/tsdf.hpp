@@ -283,6 +283,39 @@ struct IntegrationResult {
   bool changed() const { return !changed_blocks.empty() || !allocated_blocks.empty(); }
 };
 
+class DepthFrameAnalysis;
+IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& analysis,
+                                 const Pose& T_local_camera, const Config& cfg);
+
+/// The plane-independent first pass of integrateDepth over a depth frame: per pixel the
+/// measurement (depth and tangent plane), depth discontinuities and grazing surfaces, the
+/// distances to them (silhouette guard) and per-tile depth bounds. Computed once per frame and
+/// shared by every volume the frame is fused into (Map fuses one frame into all its planes);
+/// the result is identical to integrateDepth(vol, frame, ...). Holds a copy of the depths, so
+/// the frame need not outlive it. analyse() reuses the buffers of earlier calls.
+class DepthFrameAnalysis {
+ public:
+  DepthFrameAnalysis();
+  ~DepthFrameAnalysis();
+  DepthFrameAnalysis(const DepthFrameAnalysis& other);
+  DepthFrameAnalysis& operator=(const DepthFrameAnalysis& other);
+  DepthFrameAnalysis(DepthFrameAnalysis&&) noexcept;
+  DepthFrameAnalysis& operator=(DepthFrameAnalysis&&) noexcept;
+
+  /// Analyses `frame` for volumes of truncation `truncation` (m), with cfg's depth range and
+  /// threads. Throws planesdf::Error on invalid intrinsics, a depth buffer of the wrong size, an
+  /// invalid fusion configuration or truncation <= 0.
+  void analyse(const DepthFrame& frame, double truncation, const Config& cfg);
+  /// True before the first analyse().
+  bool empty() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  friend IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& analysis,
+                                          const Pose& T_local_camera, const Config& cfg);
+};
+
 /// Fuses a depth frame into `vol` (projective TSDF with point-to-plane distances).
 ///
 /// `T_local_camera` maps camera coordinates (OpenCV optical frame) into the volume's local frame
@@ -333,6 +366,10 @@ struct IntegrationResult {
 /// fusion configuration.
 IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
                                  const Pose& T_local_camera, const Config& cfg);
+
+// integrateDepth(vol, analysis, T_local_camera, cfg) (declared above): the same from a frame
+// analysed once (DepthFrameAnalysis); throws planesdf::Error when the analysis is empty or was
+// made for another truncation or depth range than the volume's and cfg's.
 
 /// Least-squares pinhole intrinsics of an organised cloud (e.g. a 640x480 Kinect cloud): fits
 /// u = fx * x / z + cx and v = fy * y / z + cy over its valid points (in the sensor frame,

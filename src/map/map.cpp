@@ -37,6 +37,19 @@ std::vector<Eigen::Vector3f> backProject(const DepthFrame& f, const Pose& camera
   return out;
 }
 
+/// Every `stride`-th point of every `stride`-th row of a row-major width x height grid.
+std::vector<Eigen::Vector3f> gridSubsample(const std::vector<Eigen::Vector3f>& pts, int width,
+                                           int height, int stride) {
+  if (stride <= 1) return pts;
+  std::vector<Eigen::Vector3f> out;
+  out.reserve(static_cast<std::size_t>((width + stride - 1) / stride) *
+              ((height + stride - 1) / stride));
+  for (int v = 0; v < height; v += stride)
+    for (int u = 0; u < width; u += stride)
+      out.push_back(pts[static_cast<std::size_t>(v) * width + u]);
+  return out;
+}
+
 std::vector<Eigen::Vector3f> transformPoints(const std::vector<Eigen::Vector3f>& pts,
                                              const Pose& T) {
   const Eigen::Matrix3f R = T.linear().cast<float>();
@@ -165,9 +178,13 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
 IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
                               const Config& fuse_cfg) {
   IntegrateStats stats;
+  if (planes_.empty()) return stats;
+  // The per-pixel pass is the same for every plane: once per frame (scratch reused per thread).
+  thread_local DepthFrameAnalysis analysis;
+  analysis.analyse(frame, fuse_cfg.truncation(), fuse_cfg);
   for (auto& ps : planes_) {
     const Pose T_local_camera = ps.plane.frame().inverse() * camera_to_world;
-    const IntegrationResult r = integrateDepth(ps.volume, frame, T_local_camera, fuse_cfg);
+    const IntegrationResult r = integrateDepth(ps.volume, analysis, T_local_camera, fuse_cfg);
     addResult(stats, ps.plane.id, r);
   }
   return stats;
@@ -177,7 +194,9 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   const auto t0 = Clock::now();
   checkFrame(frame);
   const std::vector<Eigen::Vector3f> pts = backProject(frame, camera_to_world);
-  tracker_.integrate(pts, camera_to_world.translation());
+  tracker_.integrate(
+      gridSubsample(pts, frame.intrinsics.width, frame.intrinsics.height, cfg_.track_pixel_stride),
+      camera_to_world.translation());
   IntegrateStats created;
   syncPlanes(created);
   IntegrateStats stats = fuseDepth(frame, camera_to_world, cfg_);

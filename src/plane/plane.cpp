@@ -149,6 +149,8 @@ void validatePlaneConfig(const Config& c) {
   require(c.ransac_iterations >= 1, "ransac_iterations must be >= 1");
   require(c.ransac_max_planes_per_frame >= 0, "ransac_max_planes_per_frame must be >= 0");
   require(c.ransac_max_samples >= 3, "ransac_max_samples must be >= 3");
+  require(c.track_pixel_stride >= 1 && c.track_pixel_stride <= 64,
+          "track_pixel_stride must be in [1, 64]");
   require(c.plane_merge_angle_deg > 0.0 && c.plane_merge_angle_deg < 90.0,
           "plane_merge_angle_deg must be in (0, 90)");
   require(c.plane_merge_offset >= 0.0, "plane_merge_offset must be >= 0");

@@ -14,6 +14,9 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr std::size_t kMatchSample = 1000;  // inliers projected to test extent overlap
+/// A plane is refined again once it gained this fraction of the inliers it had seen at its
+/// last refinement (and cfg.refine_min_new_inliers): O(log n) refinements over n inliers.
+constexpr double kRefineGrowth = 0.5;
 
 // Euclidean gap between two boxes (0 when they overlap); +inf when either is empty.
 double boxGap(const Eigen::AlignedBox2d& a, const Eigen::AlignedBox2d& b) {
@@ -146,6 +149,8 @@ void PlaneTracker::offerToReservoir(Track& track, const std::vector<Eigen::Vecto
 void PlaneTracker::maybeRefine(int id) {
   Track& track = tracks_[static_cast<std::size_t>(id)];
   if (track.since_refine < static_cast<std::size_t>(cfg_.refine_min_new_inliers)) return;
+  const std::size_t before = track.seen - track.since_refine;
+  if (static_cast<double>(track.since_refine) < kRefineGrowth * static_cast<double>(before)) return;
   Plane& plane = planes_[static_cast<std::size_t>(id)];
   if (refinePlane(track.reservoir, plane, cfg_)) {
     ++track.refinements;

@@ -280,6 +280,10 @@ inline PixelMeasurement encodeMeasurement(float nx, float ny, float d, float k, 
 /// Surfaces seen more grazing than this (cosine between the ray and the surface normal) are not
 /// fused: their points only carve free space (and are edge pixels for the silhouette guard).
 constexpr float kMinCosine = 0.2f;
+/// Bound on the tangent-plane term of q, |n' . (voxel - its pixel's ray point)|, in pixel
+/// footprints at the voxel's depth: |n'| <= 1 / kMinCosine = 5 and the voxel is at most half a
+/// pixel diagonal (0.71 px) off its pixel's ray.
+constexpr float kTangentSlackPx = 3.6f;
 /// Neighbouring depths differing by more than this many pixel footprints (and more than the
 /// truncation) are a discontinuity; a surface at acos(kMinCosine) = 78 deg differs by ~5.
 constexpr float kMaxJumpFootprints = 6.0f;
@@ -370,6 +374,7 @@ struct FrameMeasurements {
   std::vector<float> xn, yn;             ///< normalised coordinates of columns / rows
   float depth_scale = 0.0f;              ///< metres per unit of PixelMeasurement::dq
   std::vector<float> guard;              ///< per tile: nearby edge depth (+inf: none)
+  std::vector<float> tile_max_depth;     ///< per tile: largest measured depth (-inf: none)
   int tiles_x = 0, tiles_y = 0;
   /// Per pixel: chessboard distance (pixels, saturated at kFarEdge) to the nearest edge pixel.
   std::vector<std::uint8_t> edge_dist;
@@ -453,61 +458,60 @@ void dilateMin(std::vector<float>& map, int w, int h, int r) {
     }
 }
 
-/// Pass 1 over the pixels, parallel over rows of tiles: fills `fm` and allocates the blocks
-/// crossed by the ray segments of in-band points within the truncation of their surface
-/// (|depth difference| * k <= trunc), clipped to the band's voxels. Returns the in-band count.
-std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const Camera& cam,
-                                const Band& band, int threads, FrameMeasurements& fm,
-                                std::vector<Eigen::Vector3i>& allocated) {
+/// Pass 1a over the pixels (plane-independent), parallel over rows of tiles: fills `fm` (the
+/// measurements, with only grazing pixels flagged carve-only; edge and silhouette distances;
+/// the guard and largest-depth tiles) and `k_exact` (per pixel k, 0 when the pixel is invalid
+/// or grazing).
+void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int threads,
+                   FrameMeasurements& fm, std::vector<float>& k_exact) {
   const int W = cam.width, H = cam.height;
-  const float trunc = static_cast<float>(vol.truncation());
-  const float inv_bs = static_cast<float>(1.0 / vol.blockSize());
   const float footprint = 1.0f / std::min(cam.fx, cam.fy);  // pixel size at unit depth
-  const Eigen::Matrix3f& R = cam.R_lc;
-  const Eigen::Vector3f& t = cam.t_lc;
   std::vector<float>& xn = fm.xn;
   xn.resize(W);
   for (int u = 0; u < W; ++u) xn[u] = (static_cast<float>(u) - cam.cx) / cam.fx;
   fm.yn.resize(H);
   for (int v = 0; v < H; ++v) fm.yn[v] = (static_cast<float>(v) - cam.cy) / cam.fy;
   fm.pixels.resize(static_cast<std::size_t>(W) * H);
+  k_exact.resize(static_cast<std::size_t>(W) * H);
   fm.depth_scale = cam.z_max / 65535.0f;
   fm.tiles_x = (W + kGuardTile - 1) >> kGuardTileShift;
   fm.tiles_y = (H + kGuardTile - 1) >> kGuardTileShift;
   fm.guard.assign(static_cast<std::size_t>(fm.tiles_x) * fm.tiles_y,
                   std::numeric_limits<float>::infinity());
+  fm.tile_max_depth.assign(fm.guard.size(), -std::numeric_limits<float>::infinity());
   fm.edge_dist.resize(static_cast<std::size_t>(W) * H);
   fm.silhouette_dist.resize(static_cast<std::size_t>(W) * H);
-  std::vector<std::vector<std::uint64_t>> new_keys(threads);
-  std::size_t in_band = 0, n_valid = 0;
+  std::size_t n_valid = 0;
   double sum_depth = 0.0;
-#pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : in_band, n_valid, sum_depth)
+#pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : n_valid, sum_depth)
   {
-    SegmentBlocks segments(vol);
     std::vector<int> edge_cols, silhouette_cols;
     edge_cols.reserve(static_cast<std::size_t>(W));
     silhouette_cols.reserve(static_cast<std::size_t>(W));
 #pragma omp for schedule(dynamic, 1)
     for (int ty = 0; ty < fm.tiles_y; ++ty) {
       float* guard_row = fm.guard.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
+      float* max_depth_row = fm.tile_max_depth.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
       for (int v = ty * kGuardTile; v < std::min(H, (ty + 1) * kGuardTile); ++v) {
         const float yn = fm.yn[v];
-        const float row_dir[3] = {yn * R(0, 1) + R(0, 2), yn * R(1, 1) + R(1, 2),
-                                  yn * R(2, 1) + R(2, 2)};
         const float* depth = frame.depth.data() + static_cast<std::size_t>(v) * W;
         const float* above = v > 0 ? depth - W : nullptr;
         const float* below = v + 1 < H ? depth + W : nullptr;
         PixelMeasurement* out = fm.pixels.data() + static_cast<std::size_t>(v) * W;
+        float* k_out = k_exact.data() + static_cast<std::size_t>(v) * W;
         edge_cols.clear();
         silhouette_cols.clear();
         for (int u = 0; u < W; ++u) {
           const float d = depth[u];
+          k_out[u] = 0.0f;
           if (!(d >= cam.z_min && d <= cam.z_max)) {
             out[u] = {0, 0, 0, 0};
             continue;
           }
           ++n_valid;
           sum_depth += d;
+          float& dmax = max_depth_row[u >> kGuardTileShift];
+          dmax = std::max(dmax, d);
           const float max_jump = std::max(trunc, kMaxJumpFootprints * d * footprint);
           float n[3];
           surfaceNormal(above, depth, below, u, xn[u], yn, d, cam, max_jump, n);
@@ -519,37 +523,12 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
             edge_cols.push_back(u);
             if (silhouette) silhouette_cols.push_back(u);
           }
-          // The ray in local coordinates per unit depth, and the point's height.
-          const float dir[3] = {xn[u] * R(0, 0) + row_dir[0], xn[u] * R(1, 0) + row_dir[1],
-                                xn[u] * R(2, 0) + row_dir[2]};
-          const float pz = t.z() + d * dir[2];
           if (k == 0.0f) {  // grazing: carve along the optical axis only
             out[u] = encodeMeasurement(0.0f, 0.0f, d, 1.0f, true, fm.depth_scale);
             continue;
           }
-          const float nx = n[0] / k, ny = n[1] / k;
-          if (!(pz >= band.pt_lo && pz <= band.pt_hi)) {
-            out[u] = encodeMeasurement(nx, ny, d, k, true, fm.depth_scale);
-            continue;
-          }
-          out[u] = encodeMeasurement(nx, ny, d, k, false, fm.depth_scale);
-          ++in_band;
-          // Segment over depths d + s of this pixel's ray, for the voxels it fuses: trunc / k in
-          // front (distance trunc), behind up to the distance kBehindFraction * trunc and at most
-          // trunc in depth; clipped to the band's voxels.
-          float s0 = -trunc / k, s1 = std::min(trunc, -kBehindFraction * s0);
-          if (dir[2] != 0.0f) {
-            float sa = (band.alloc_lo - pz) / dir[2], sb = (band.alloc_hi - pz) / dir[2];
-            if (sa > sb) std::swap(sa, sb);
-            s0 = std::max(s0, sa);
-            s1 = std::min(s1, sb);
-          }
-          if (s0 > s1) continue;
-          const float a0 = (d + s0) * inv_bs, a1 = (d + s1) * inv_bs;
-          segments.add(Eigen::Vector3f(t.x() * inv_bs + a0 * dir[0], t.y() * inv_bs + a0 * dir[1],
-                                       t.z() * inv_bs + a0 * dir[2]),
-                       Eigen::Vector3f(t.x() * inv_bs + a1 * dir[0], t.y() * inv_bs + a1 * dir[1],
-                                       t.z() * inv_bs + a1 * dir[2]));
+          k_out[u] = k;
+          out[u] = encodeMeasurement(n[0] / k, n[1] / k, d, k, false, fm.depth_scale);
         }
         rowEdgeDistance(edge_cols.data(), static_cast<int>(edge_cols.size()), W,
                         fm.edge_dist.data() + static_cast<std::size_t>(v) * W);
@@ -557,9 +536,7 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
                         fm.silhouette_dist.data() + static_cast<std::size_t>(v) * W);
       }
     }
-    new_keys[omp_get_thread_num()] = segments.newKeys();
   }
-  allocated = allocateKeys(vol, new_keys);
   columnEdgeDistance(fm.edge_dist.data(), W, H);
   columnEdgeDistance(fm.silhouette_dist.data(), W, H);
   // Lateral reach of the truncation at the frame's mean depth, in tiles.
@@ -567,7 +544,72 @@ std::size_t classifyAndAllocate(TsdfVolume& vol, const DepthFrame& frame, const 
     const double reach_px = trunc / (footprint * (sum_depth / static_cast<double>(n_valid)));
     dilateMin(fm.guard, fm.tiles_x, fm.tiles_y, static_cast<int>(std::ceil(reach_px / kGuardTile)));
   }
-  return in_band;
+}
+
+/// Pass 1b (per volume), parallel over rows: flags the pixels whose point lies in the band
+/// (`in_band`, the others only carve) and allocates the blocks crossed by the ray segments of
+/// in-band points within the truncation of their surface (|depth difference| * k <= trunc),
+/// clipped to the band's voxels. Returns the in-band count.
+std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
+                           const std::vector<float>& k_exact, const FrameMeasurements& fm,
+                           const Camera& cam, const Band& band, int threads,
+                           std::vector<std::uint8_t>& in_band,
+                           std::vector<Eigen::Vector3i>& allocated) {
+  const int W = cam.width, H = cam.height;
+  const float trunc = static_cast<float>(vol.truncation());
+  const float inv_bs = static_cast<float>(1.0 / vol.blockSize());
+  const Eigen::Matrix3f& R = cam.R_lc;
+  const Eigen::Vector3f& t = cam.t_lc;
+  in_band.resize(static_cast<std::size_t>(W) * H);
+  std::vector<std::vector<std::uint64_t>> new_keys(threads);
+  std::size_t count = 0;
+#pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : count)
+  {
+    SegmentBlocks segments(vol);
+#pragma omp for schedule(dynamic, 8)
+    for (int v = 0; v < H; ++v) {
+      const float yn = fm.yn[v];
+      const float row_dir[3] = {yn * R(0, 1) + R(0, 2), yn * R(1, 1) + R(1, 2),
+                                yn * R(2, 1) + R(2, 2)};
+      const std::size_t row = static_cast<std::size_t>(v) * W;
+      const float* depth = depth_img.data() + row;
+      const float* ks = k_exact.data() + row;
+      std::uint8_t* flag = in_band.data() + row;
+      for (int u = 0; u < W; ++u) {
+        flag[u] = 0;
+        const float k = ks[u];
+        if (k == 0.0f) continue;  // no measurement, or grazing (carves only)
+        const float d = depth[u];
+        // The ray in local coordinates per unit depth, and the point's height.
+        const float xu = fm.xn[u];
+        const float dir[3] = {xu * R(0, 0) + row_dir[0], xu * R(1, 0) + row_dir[1],
+                              xu * R(2, 0) + row_dir[2]};
+        const float pz = t.z() + d * dir[2];
+        if (!(pz >= band.pt_lo && pz <= band.pt_hi)) continue;
+        flag[u] = 1;
+        ++count;
+        // Segment over depths d + s of this pixel's ray, for the voxels it fuses: trunc / k in
+        // front (distance trunc), behind up to the distance kBehindFraction * trunc and at most
+        // trunc in depth; clipped to the band's voxels.
+        float s0 = -trunc / k, s1 = std::min(trunc, -kBehindFraction * s0);
+        if (dir[2] != 0.0f) {
+          float sa = (band.alloc_lo - pz) / dir[2], sb = (band.alloc_hi - pz) / dir[2];
+          if (sa > sb) std::swap(sa, sb);
+          s0 = std::max(s0, sa);
+          s1 = std::min(s1, sb);
+        }
+        if (s0 > s1) continue;
+        const float a0 = (d + s0) * inv_bs, a1 = (d + s1) * inv_bs;
+        segments.add(Eigen::Vector3f(t.x() * inv_bs + a0 * dir[0], t.y() * inv_bs + a0 * dir[1],
+                                     t.z() * inv_bs + a0 * dir[2]),
+                     Eigen::Vector3f(t.x() * inv_bs + a1 * dir[0], t.y() * inv_bs + a1 * dir[1],
+                                     t.z() * inv_bs + a1 * dir[2]));
+      }
+    }
+    new_keys[omp_get_thread_num()] = segments.newKeys();
+  }
+  allocated = allocateKeys(vol, new_keys);
+  return count;
 }
 
 /// Slots of the allocated blocks that may hold a voxel centre in the frustum's local AABB and
@@ -680,6 +722,7 @@ struct BlockOutcome {
 
 struct DepthUpdateParams {
   const FrameMeasurements* fm;
+  const std::uint8_t* in_band;  ///< per pixel: the point is in the band (else it only carves)
   float trunc;
   float max_weight;
   float voxel;
@@ -719,9 +762,66 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   // Pixels per metre of lateral distance at unit depth (the smaller focal length: the lateral
   // distance is never overestimated).
   const float edge_scale = std::min(fx, fy);
+
+  // Occlusion bound. Over the pixels the block's voxel centres can project to (nearest pixel,
+  // inside the projected box of its corner centres), the largest measured depth dmax. A voxel
+  // deeper than dmax + trunc + the tangent-plane term (|n'| * the voxel's lateral offset from its
+  // pixel's ray, at most kTangentSlackPx pixel footprints) has q < -trunc: untouched. Slices of
+  // the block beyond that are skipped whole (the result is identical).
+  float occluded_from = kInf;
+  {
+    const float e = static_cast<float>(kTsdfBlockSide - 1);
+    float umin = kInf, umax = -kInf, vmin = kInf, vmax = -kInf, zmax = -kInf;
+    bool in_front = true;
+    for (int i = 0; i < 8; ++i) {
+      const Eigen::Vector3f p =
+          c0 + ((i & 1) ? e : 0.0f) * ax + ((i & 2) ? e : 0.0f) * ay + ((i & 4) ? e : 0.0f) * az;
+      if (!(p.z() > 1e-3f)) {
+        in_front = false;
+        break;
+      }
+      const float u = fx * p.x() / p.z() + cx, v = fy * p.y() / p.z() + cy;
+      umin = std::min(umin, u);
+      umax = std::max(umax, u);
+      vmin = std::min(vmin, v);
+      vmax = std::max(vmax, v);
+      zmax = std::max(zmax, p.z());
+    }
+    if (in_front) {
+      if (umax < -0.5f || umin >= w_lim || vmax < -0.5f || vmin >= h_lim) return out;
+      const auto pixel = [](float x, int n) {
+        return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
+      };
+      const int tx0 = pixel(umin, W) >> kGuardTileShift, tx1 = pixel(umax, W) >> kGuardTileShift;
+      const int ty0 = pixel(vmin, H) >> kGuardTileShift, ty1 = pixel(vmax, H) >> kGuardTileShift;
+      float dmax = -kInf;
+      for (int ty = ty0; ty <= ty1; ++ty)
+        for (int tx = tx0; tx <= tx1; ++tx)
+          dmax = std::max(dmax, fm.tile_max_depth[static_cast<std::size_t>(ty) * fm.tiles_x + tx]);
+      occluded_from = dmax + trunc + kTangentSlackPx * zmax / edge_scale + 1e-3f;
+    }
+  }
+  const float near_dz = (kTsdfBlockSide - 1) * (std::min(0.0f, ax.z()) + std::min(0.0f, ay.z()));
+  // True when a voxel centre of slice z projects into the image within the depth range.
+  const auto sliceInView = [&](int z) {
+    for (int y = 0; y < kTsdfBlockSide; ++y)
+      for (int x = 0; x < kTsdfBlockSide; ++x) {
+        const Eigen::Vector3f p = c0 + static_cast<float>(x) * ax + static_cast<float>(y) * ay +
+                                  static_cast<float>(z) * az;
+        if (!(p.z() >= cam.z_min && p.z() <= cam.z_max)) continue;
+        const float uf = fx * p.x() / p.z() + cx, vf = fy * p.y() / p.z() + cy;
+        if (uf >= -0.5f && uf < w_lim && vf >= -0.5f && vf < h_lim) return true;
+      }
+    return false;
+  };
+
   for (int z = 0; z < kTsdfBlockSide; ++z) {
     const float h = static_cast<float>(c0_local.z() + z * vs);
     if (!(h >= prm.band.vox_lo && h <= prm.band.vox_hi)) continue;
+    if (c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from) {
+      if (!out.in_view) out.in_view = sliceInView(z);
+      continue;
+    }
     for (int y = 0; y < kTsdfBlockSide; ++y) {
       const float fz = static_cast<float>(z), fyy = static_cast<float>(y);
       const float rx = c0.x() + fz * az.x() + fyy * ay.x();
@@ -767,8 +867,8 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
         }
         if (sdf >= trunc)
           sdf = trunc;
-        else if (m.kq < 0)
-          continue;  // outside the band: carves free space only
+        else if (m.kq < 0 || !prm.in_band[pix])
+          continue;  // grazing or outside the band: carves free space only
         out.changed |= fuseVoxel(voxels[x], sdf, prm.max_weight);
         ++out.updates;
       }
@@ -861,24 +961,75 @@ std::uint32_t applySplat(TsdfBlock& blk, const Splat& s, float trunc, float r2, 
 
 }  // namespace
 
-IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
-                                 const Pose& T_local_camera, const Config& cfg) {
+struct DepthFrameAnalysis::Impl {
+  FrameMeasurements fm;
+  std::vector<float> depth;  ///< the frame's depths (exact, for allocation)
+  std::vector<float> k;      ///< per pixel k (0: invalid or grazing)
+  Intrinsics intrinsics;
+  float truncation = 0.0f;
+  float z_min = 0.0f, z_max = 0.0f;
+  int threads = 1;
+};
+
+DepthFrameAnalysis::DepthFrameAnalysis() = default;
+DepthFrameAnalysis::~DepthFrameAnalysis() = default;
+DepthFrameAnalysis::DepthFrameAnalysis(DepthFrameAnalysis&&) noexcept = default;
+DepthFrameAnalysis& DepthFrameAnalysis::operator=(DepthFrameAnalysis&&) noexcept = default;
+DepthFrameAnalysis::DepthFrameAnalysis(const DepthFrameAnalysis& o)
+    : impl_(o.impl_ ? std::make_unique<Impl>(*o.impl_) : nullptr) {}
+DepthFrameAnalysis& DepthFrameAnalysis::operator=(const DepthFrameAnalysis& o) {
+  if (this != &o) impl_ = o.impl_ ? std::make_unique<Impl>(*o.impl_) : nullptr;
+  return *this;
+}
+
+void DepthFrameAnalysis::analyse(const DepthFrame& frame, double truncation, const Config& cfg) {
   validateFrame(frame);
   validateFusionConfig(cfg);
+  if (!(std::isfinite(truncation) && truncation > 0.0))
+    throw Error("", "depth frame analysis: truncation must be > 0");
+  if (!impl_) impl_ = std::make_unique<Impl>();
+  Impl& a = *impl_;
+  a.intrinsics = frame.intrinsics;
+  a.truncation = static_cast<float>(truncation);
+  a.threads = resolveThreads(cfg.threads);
+  const Camera cam = makeCamera(frame.intrinsics, Pose::Identity(), cfg);
+  a.z_min = cam.z_min;
+  a.z_max = cam.z_max;
+  a.depth = frame.depth;
+  analysePixels(frame, cam, a.truncation, a.threads, a.fm, a.k);
+}
+
+bool DepthFrameAnalysis::empty() const {
+  return !impl_;
+}
+
+IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& analysis,
+                                 const Pose& T_local_camera, const Config& cfg) {
+  if (!analysis.impl_) throw Error("", "depth frame analysis: analyse() was not called");
+  validateFusionConfig(cfg);
+  const DepthFrameAnalysis::Impl& a = *analysis.impl_;
+  const Camera cam = makeCamera(a.intrinsics, T_local_camera, cfg);
+  if (static_cast<float>(vol.truncation()) != a.truncation || cam.z_min != a.z_min ||
+      cam.z_max != a.z_max)
+    throw Error("", "depth frame analysis: made for truncation " + std::to_string(a.truncation) +
+                        " m and depths [" + std::to_string(a.z_min) + ", " +
+                        std::to_string(a.z_max) + "] m, used with truncation " +
+                        std::to_string(vol.truncation()) + " m and depths [" +
+                        std::to_string(cam.z_min) + ", " + std::to_string(cam.z_max) + "] m");
   IntegrationResult res;
   const int threads = resolveThreads(cfg.threads);
-  const Camera cam = makeCamera(frame.intrinsics, T_local_camera, cfg);
   const Band band = makeBand(cfg, vol.voxelSize(), vol.truncation());
-  // Per-thread scratch reused across calls (every entry is rewritten by pass 1): no large
-  // allocation and page faulting per frame.
-  thread_local FrameMeasurements fm;
+  // Per-thread scratch reused across calls (every entry is rewritten): no large allocation and
+  // page faulting per call.
+  thread_local std::vector<std::uint8_t> in_band;
   res.num_points_fused =
-      classifyAndAllocate(vol, frame, cam, band, threads, fm, res.allocated_blocks);
+      allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, in_band, res.allocated_blocks);
 
   const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band);
   std::vector<BlockOutcome> outcomes(slots.size());
   const FrustumCull cull(cam);
-  DepthUpdateParams prm{&fm,
+  DepthUpdateParams prm{&a.fm,
+                        in_band.data(),
                         static_cast<float>(vol.truncation()),
                         cfg.max_weight,
                         static_cast<float>(vol.voxelSize()),
@@ -893,6 +1044,14 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
   }
   finishIntegration(vol, slots, outcomes, res);
   return res;
+}
+
+IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
+                                 const Pose& T_local_camera, const Config& cfg) {
+  // Per-thread scratch reused across calls: no large allocation and page faulting per frame.
+  thread_local DepthFrameAnalysis analysis;
+  analysis.analyse(frame, vol.truncation(), cfg);
+  return integrateDepth(vol, analysis, T_local_camera, cfg);
 }
 
 IntegrationResult integratePointsWithNormals(TsdfVolume& vol,

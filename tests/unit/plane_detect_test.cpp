@@ -368,6 +368,30 @@ TEST(PlaneRansac, FindsTheTablePlaneInADepthFrame) {
   }
 }
 
+TEST(PlaneTracker, RefinementsThinOutGeometricallyAndKeepThePlaneExact) {
+  // The same view 40 times: every frame brings as many inliers, so a refinement every
+  // refine_min_new_inliers would run in every frame; with the geometric schedule (refine when
+  // the inliers gained reach half of those seen at the last refinement) the count grows like
+  // log_1.5(frames): frames 1, 2, 3, 5, 8, 12, 18, 27, 41 -> 8 refinements within 40 frames.
+  const std::vector<Box> scene = tabletopScene();
+  Config cfg;
+  PlaneTracker tracker(cfg);
+  const Pose pose = kinectPose();
+  int table_id = -1;
+  for (int f = 0; f < 40; ++f) {
+    const PointCloud frame = renderDepth(scene, pose, 100 + f, /*world=*/true, 320, 240);
+    const std::vector<int> ids = tracker.integrate(frame.points, pose.translation());
+    ASSERT_FALSE(ids.empty());
+    if (f == 0) table_id = ids.front();
+    EXPECT_EQ(ids.front(), table_id) << "frame " << f;
+  }
+  const Plane table = *tracker.plane(table_id);
+  EXPECT_GE(tracker.refinementCount(table_id), 6);
+  EXPECT_LE(tracker.refinementCount(table_id), 9);
+  EXPECT_LT(angleDeg(table.normal, {0, 0, 1}), 0.2);
+  EXPECT_NEAR(table.offset, -0.75, 0.001);
+}
+
 TEST(PlaneTracker, MergesOnePlaneSeenInFiveFramesAndKeepsIdsStable) {
   const std::vector<Box> scene = tabletopScene();
   Config cfg;

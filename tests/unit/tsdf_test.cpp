@@ -623,12 +623,18 @@ TEST(TsdfFusion, InvalidDepthsChangeNothing) {
   EXPECT_EQ(empty.revision(), 0u);
 }
 
-TEST(TsdfFusion, SameResultWithOneAndTwoThreads) {
+/// The sphere on the plane with a box beside it.
+Scene sphereAndBox() {
   Scene scene;
   scene.sphere = true;
   scene.box = true;
   scene.box_c = Eigen::Vector3d(0.2, 0.1, 0.04);
   scene.box_half = Eigen::Vector3d(0.04, 0.06, 0.04);
+  return scene;
+}
+
+TEST(TsdfFusion, SameResultWithOneAndTwoThreads) {
+  const Scene scene = sphereAndBox();
   const std::vector<Pose> poses = ring(6, 0.8, 0.6, kTarget);
   TsdfVolume one(testConfig(1)), two(testConfig(2));
   for (const Pose& T : poses) {
@@ -641,6 +647,98 @@ TEST(TsdfFusion, SameResultWithOneAndTwoThreads) {
   }
   EXPECT_TRUE(sameVolumes(one, two));
   EXPECT_EQ(one.revision(), two.revision());
+}
+
+TEST(TsdfFusion, OneFrameAnalysisSharedByTwoVolumesEqualsFusingEachAlone) {
+  const Scene scene = sphereAndBox();
+  const Config cfg = testConfig();
+  // Two volumes in different local frames (as a Map's planes are): the scene's, and one raised
+  // by 3 cm and turned by 20 deg about z (a coplanar band offset from the first).
+  Pose lift = Pose::Identity();
+  lift.linear() = Eigen::AngleAxisd(0.35, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  lift.translation() = Eigen::Vector3d(0.01, -0.02, 0.03);
+  TsdfVolume a1(cfg), b1(cfg), a2(cfg), b2(cfg);
+  DepthFrameAnalysis analysis;
+  EXPECT_TRUE(analysis.empty());
+  EXPECT_THROW(integrateDepth(a2, analysis, Pose::Identity(), cfg), Error);
+  for (const Pose& T : ring(5, 0.8, 0.6, kTarget)) {
+    const DepthFrame f = render(scene, smallCamera(), T);
+    const Pose T_b = lift.inverse() * T;
+    const IntegrationResult ra1 = integrateDepth(a1, f, T, cfg);
+    const IntegrationResult rb1 = integrateDepth(b1, f, T_b, cfg);
+    analysis.analyse(f, a2.truncation(), cfg);
+    const IntegrationResult ra2 = integrateDepth(a2, analysis, T, cfg);
+    const IntegrationResult rb2 = integrateDepth(b2, analysis, T_b, cfg);
+    EXPECT_EQ(ra1.updated_blocks, ra2.updated_blocks);
+    EXPECT_EQ(ra1.allocated_blocks, ra2.allocated_blocks);
+    EXPECT_EQ(ra1.num_voxel_updates, ra2.num_voxel_updates);
+    EXPECT_EQ(ra1.num_points_fused, ra2.num_points_fused);
+    EXPECT_EQ(rb1.changed_blocks, rb2.changed_blocks);
+    EXPECT_EQ(rb1.num_voxel_updates, rb2.num_voxel_updates);
+  }
+  EXPECT_TRUE(sameVolumes(a1, a2));
+  EXPECT_TRUE(sameVolumes(b1, b2));
+  EXPECT_GT(b1.numBlocks(), 50u);
+  // An analysis made for another truncation or depth range is refused.
+  Config coarse = cfg;
+  coarse.truncation_voxels = 6;
+  TsdfVolume c(coarse);
+  EXPECT_THROW(integrateDepth(c, analysis, Pose::Identity(), coarse), Error);
+  Config near = cfg;
+  near.max_depth = 2.0;
+  EXPECT_THROW(integrateDepth(a2, analysis, Pose::Identity(), near), Error);
+}
+
+TEST(TsdfFusion, VoxelsHiddenBehindAnOccluderAreUntouched) {
+  // A plane fused from above, then seen from the side past a box standing on it: plane voxels
+  // in the box's shadow (the box surface more than a truncation in front of them along their
+  // line of sight) keep their values; the visible plane keeps being fused.
+  const Config cfg = testConfig();
+  Scene open;
+  open.plane_half = 0.6;
+  TsdfVolume vol(cfg);
+  for (const Pose& T : ring(6, 0.3, 0.9, kTarget))
+    integrateDepth(vol, render(open, smallCamera(), T), T, cfg);
+  Scene boxed = open;
+  boxed.box = true;
+  boxed.box_c = Eigen::Vector3d(0.0, 0.0, 0.15);
+  boxed.box_half = Eigen::Vector3d(0.05, 0.25, 0.15);
+  const Pose T = lookAt(Eigen::Vector3d(-0.7, 0.0, 0.35), Eigen::Vector3d(0.3, 0.0, 0.0));
+  const TsdfVolume before = vol;
+  integrateDepth(vol, render(boxed, smallCamera(), T), T, cfg);
+  const Pose T_cl = T.inverse();
+  const Intrinsics K = smallCamera();
+  const double vs = vol.voxelSize(), trunc = vol.truncation();
+  std::size_t shadowed = 0, shadowed_changed = 0, visible_changed = 0;
+  for (std::size_t s = 0; s < before.numBlocks(); ++s) {  // slots keep allocation order
+    const Eigen::Vector3i b0 = vol.block(s).index * kTsdfBlockSide;
+    for (int i = 0; i < kTsdfBlockVoxels; ++i) {
+      const Eigen::Vector3d c((b0.x() + (i & 7) + 0.5) * vs, (b0.y() + ((i >> 3) & 7) + 0.5) * vs,
+                              (b0.z() + (i >> 6) + 0.5) * vs);
+      if (std::abs(c.z()) > 2 * vs || !open.inside(c.x(), c.y()) || std::abs(c.x()) < 0.1) continue;
+      const Eigen::Vector3d pc = T_cl * c;
+      const double u = K.fx * pc.x() / pc.z() + K.cx, v = K.fy * pc.y() / pc.z() + K.cy;
+      if (pc.z() < cfg.min_depth || u < 1 || v < 1 || u > K.width - 2 || v > K.height - 2) continue;
+      // Depth of the first surface seen by the voxel's pixel (nearest pixel centre; a ray with
+      // z = 1 per unit t), also on the voxel's own line of sight.
+      const double ui = std::floor(u + 0.5), vi = std::floor(v + 0.5);
+      const Eigen::Vector3d pixel_ray((ui - K.cx) / K.fx, (vi - K.cy) / K.fy, 1.0);
+      const double hit = std::max(boxed.raycast(T.translation(), T.linear() * pixel_ray),
+                                  boxed.raycast(T.translation(), T.linear() * (pc / pc.z())));
+      const TsdfVoxel& now = vol.block(s).voxels[i];
+      const TsdfVoxel& was = before.block(s).voxels[i];
+      const bool changed = now.weight != was.weight || now.sdf != was.sdf;
+      if (hit < pc.z() - trunc - 0.02) {
+        ++shadowed;
+        shadowed_changed += changed;
+      } else if (std::abs(hit - pc.z()) < 0.5 * trunc) {
+        visible_changed += changed;
+      }
+    }
+  }
+  EXPECT_GT(shadowed, 500u);
+  EXPECT_EQ(shadowed_changed, 0u);
+  EXPECT_GT(visible_changed, 500u);
 }
 
 TEST(TsdfFusion, WeightsAreCappedAndRevisionTracksChanges) {
