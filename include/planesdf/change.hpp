@@ -24,6 +24,7 @@
 #include <array>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <map>
 #include <string>
 #include <utility>
@@ -105,6 +106,19 @@ struct ChangeEvent {
   std::size_t numPoints() const { return reference.points.size() + current.points.size(); }
 };
 
+/// How a changed blob of the source map compares with the objects of the target map it lands on
+/// (see sameInPlace).
+struct InPlaceMatch {
+  int target_cells = 0;  ///< cells of the target objects its mapped footprint lands on
+  double overlap = 0.0;  ///< IoU of its mapped footprint and those objects' footprint
+  double shift = 0.0;    ///< m, between the two footprints' centroids (target plane frame)
+  double size = 0.0;     ///< m, the smaller of the two footprints' box diagonals
+  double shape_distance = std::numeric_limits<double>::infinity();  ///< shapeDistance of the two
+  /// The same object in the same place: overlap >= kInPlaceMinOverlap, shift <=
+  /// kInPlaceShiftFraction * size and shape_distance < kMovedShapeDistance.
+  bool same() const;
+};
+
 /// The comparison of one registered plane pair in one direction, with every stage kept (for
 /// pictures and debugging).
 struct PlanePairResult {
@@ -116,7 +130,9 @@ struct PlanePairResult {
   ObjectMap source_objects;
   HeightChange change;                      ///< 2D stages (raw, cleaned, blobs ...)
   std::vector<BlobValidation> validations;  ///< per change.blobs entry
-  Mask2D validated;                         ///< cells of the blobs the 3D check kept
+  /// Per change.blobs entry: how it compares with the target objects it lands on (sameInPlace).
+  std::vector<InPlaceMatch> in_place;
+  Mask2D validated;  ///< cells of the blobs the 3D check kept
 };
 
 /// Everything detectChanges found.
@@ -164,6 +180,8 @@ struct CandidateChange {
   /// The target objects it overlaps, as a region of the target map (whole object columns above
   /// h_obj / 2); empty when it overlaps none.
   ChangeRegion target_object;
+  /// sameInPlace(...).same(): the target has an object of its shape in its place.
+  bool same_in_place = false;
 };
 
 /// Compares source plane `src` with target plane `tgt` of a registered pair and returns the
@@ -211,10 +229,12 @@ PlaneMatch corrected(PlaneMatch match, const Map& current, const Pose& correctio
 /// True when the two lists share a column.
 bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eigen::Vector2i>& b);
 
-/// Turns removed and added candidates into events: moved pairs first (shapeDistance below
-/// kMovedShapeDistance, greedy by distance), then replaced (a removed candidate with the added
-/// candidates its mapped footprint overlaps; or, with none, the current objects it lands on when
-/// they cover at least kReplacedMinOverlap of it), then the rest. Ids 1..N in order of (type,
+/// Turns removed and added candidates into events. Static first: Unknown candidates with
+/// same_in_place and no Changed candidate of the other direction on their footprint, and removed +
+/// added Unknown pairs of one shape in one place, are no event. Then moved pairs (shapeDistance
+/// below kMovedShapeDistance, greedy by distance), then replaced (a removed candidate with the
+/// added candidates its mapped footprint overlaps; or, with none, the current objects it lands on
+/// when they cover at least kReplacedMinOverlap of it), then the rest. Ids 1..N in order of (type,
 /// primary plane id, centroid); confidences from cfg.delta_blob (see ChangeEvent::confidence).
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg);
@@ -229,8 +249,28 @@ std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> matches);
 /// has no added candidate.
 constexpr double kReplacedMinOverlap = 0.5;
 
-/// Largest shapeDistance of a moved pair.
+/// Largest shapeDistance of a moved pair (and of the same object in place).
 constexpr double kMovedShapeDistance = 0.3;
+
+/// The same object in place: largest footprint centroid shift, as a fraction of the (smaller)
+/// footprint's box diagonal (sameInPlace; assembleEvents' removed + added Unknown pairs).
+constexpr double kInPlaceShiftFraction = 0.15;
+/// The same object in place: smallest footprint IoU (sameInPlace).
+constexpr double kInPlaceMinOverlap = 0.5;
+
+/// The blob `cells` of source height map `src`, carried into the target grid by T (plane-local
+/// source -> target), against the objects of `tgt_objects` (on `tgt`) those cells land on: their
+/// footprint overlap, centroid shift and shape distance (signatures over each map's own cells).
+///
+/// Used on candidates the 3D validation could not score (Unknown): one with same() is the object
+/// the other map also has in that place, seen from other viewpoints (its outline differs by mixed
+/// pixels and grazing rays at its silhouette, e.g. a table leg whose top is above the band and
+/// whose sides carry no key voxel), so nothing shows a change and assembleEvents drops it, unless
+/// the other direction has a candidate with 3D evidence (Changed) on its footprint. A candidate
+/// with 3D evidence keeps its verdict; a different object in the same place (replaced, swapped)
+/// differs in shape, a moved one in position.
+InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i>& cells,
+                         const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T);
 
 // --- outputs (DESIGN §3 "detect") ----------------------------------------------------------------
 

@@ -254,6 +254,60 @@ double shapeDistance(const ShapeSignature& a, const ShapeSignature& b) {
   return d;
 }
 
+bool InPlaceMatch::same() const {
+  return target_cells > 0 && overlap >= kInPlaceMinOverlap &&
+         shift <= kInPlaceShiftFraction * size && shape_distance < kMovedShapeDistance;
+}
+
+InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i>& cells,
+                         const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T) {
+  InPlaceMatch m;
+  if (cells.empty() || tgt.empty() || !tgt_objects.sameGeometry(tgt)) return m;
+  // The blob's footprint in the target grid (distinct cells) and the objects it lands on.
+  std::vector<char> mapped(tgt.numCells(), 0);
+  std::set<int> labels;
+  for (const Eigen::Vector2i& c : cells) {
+    const float h = src.at(c.x(), c.y());
+    Eigen::Vector2i tc;
+    targetHeight(tgt, T, src.cellCenter(c.x(), c.y()), std::max(0.0f, h), &tc);
+    if (!tgt.inBounds(tc.x(), tc.y())) continue;
+    mapped[tgt.index(tc.x(), tc.y())] = 1;
+    const int label = tgt_objects.at(tc.x(), tc.y());
+    if (label > 0) labels.insert(label);
+  }
+  if (labels.empty()) return m;
+  std::vector<Eigen::Vector2i> obj_cells;
+  Eigen::Vector2d c_obj = Eigen::Vector2d::Zero(), c_blob = Eigen::Vector2d::Zero();
+  Eigen::AlignedBox2d box_obj, box_blob;
+  int n_mapped = 0, common = 0;
+  for (int y = 0; y < tgt.height; ++y)
+    for (int x = 0; x < tgt.width; ++x) {
+      const Eigen::Vector2d uv = tgt.cellCenter(x, y);
+      const bool in_obj = labels.count(tgt_objects.at(x, y)) != 0;
+      const bool in_blob = mapped[tgt.index(x, y)] != 0;
+      if (in_obj) {
+        obj_cells.emplace_back(x, y);
+        c_obj += uv;
+        box_obj.extend(uv);
+      }
+      if (in_blob) {
+        ++n_mapped;
+        c_blob += uv;
+        box_blob.extend(uv);
+      }
+      if (in_obj && in_blob) ++common;
+    }
+  m.target_cells = static_cast<int>(obj_cells.size());
+  const int n_union = n_mapped + m.target_cells - common;
+  m.overlap = n_union > 0 ? static_cast<double>(common) / n_union : 0.0;
+  m.shift = (c_blob / n_mapped - c_obj / m.target_cells).norm();
+  // Box diagonals over cell centres, plus one cell (the cells' own extent).
+  const Eigen::Vector2d one = Eigen::Vector2d::Constant(tgt.cell_size);
+  m.size = std::min((box_blob.sizes() + one).norm(), (box_obj.sizes() + one).norm());
+  m.shape_distance = shapeDistance(signatureOf(src, cells), signatureOf(tgt, obj_cells));
+  return m;
+}
+
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
                            const Config& cfg) {
   PlaneMaps m;
@@ -309,6 +363,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
 
   r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume);
   r.validations.clear();
+  r.in_place.clear();
   r.validated = Mask2D::zeros(hs);
   const double vs = src.volume.voxelSize();
   const double trunc = src.volume.truncation();
@@ -367,6 +422,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       val = validateBlob(sv, tv, T, voxels, cfg, options.validation);
     }
     r.validations.push_back(val);
+    r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T));
+    cand.same_in_place = r.in_place.back().same();
     if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
@@ -480,22 +537,38 @@ int typeOrder(ChangeType t) {
 
 }  // namespace
 
-/// assembleEvents: a removed and an added Unknown candidate whose centroids are closer than this
-/// fraction of their (smaller) box diagonal are one object in place.
-constexpr double kInPlaceShiftFraction = 0.15;
-
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg) {
   std::vector<ChangeEvent> events;
   std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
+  const auto unknown = [](const CandidateChange& c) {
+    return c.region.verdict == BlobValidation::Verdict::Unknown;
+  };
+
+  // The same object in place, seen from other viewpoints: a candidate without 3D evidence
+  // (Unknown) that lands on an object of the other map with its shape and position
+  // (sameInPlace) is static, unless the other direction found a change with 3D evidence
+  // (Changed) on its footprint.
+  const auto evidenceAgainst = [](const CandidateChange& c,
+                                  const std::vector<CandidateChange>& others) {
+    for (const CandidateChange& o : others)
+      if (o.region.verdict == BlobValidation::Verdict::Changed &&
+          o.region.plane_id == c.target_plane_id &&
+          columnsOverlap(c.target_columns, o.region.columns))
+        return true;
+    return false;
+  };
+  for (std::size_t i = 0; i < removed.size(); ++i)
+    if (unknown(removed[i]) && removed[i].same_in_place && !evidenceAgainst(removed[i], added))
+      r_used[i] = true;
+  for (std::size_t j = 0; j < added.size(); ++j)
+    if (unknown(added[j]) && added[j].same_in_place && !evidenceAgainst(added[j], removed))
+      a_used[j] = true;
 
   // The same object in place: a removed and an added candidate with matching shapes standing on
   // the same columns, neither with 3D evidence (both Unknown: the validation scored no key
   // voxel), are one static object whose height maps differ (seen from other viewpoints), not a
   // change. Candidates the validation did score keep their verdict.
-  const auto unknown = [](const CandidateChange& c) {
-    return c.region.verdict == BlobValidation::Verdict::Unknown;
-  };
   for (std::size_t i = 0; i < removed.size(); ++i) {
     if (!unknown(removed[i])) continue;
     for (std::size_t j = 0; j < added.size() && !r_used[i]; ++j) {

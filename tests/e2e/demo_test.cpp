@@ -1,6 +1,7 @@
 // `planesdf demo` end to end: the built-in default run (simulated tabletop, fixed seed) writes
-// its report and detects every simulated change. Seed 1 today: pooled F1 0.906, M 0, W 1 (a table
-// leg on the floor, seen differently by the two orbits); the issue-5 target is W = 0.
+// its report and detects every simulated change. Seed 1 today: pooled F1 0.979, M 0, W 0 (the
+// issue-5 target). The last wrong cluster was a table leg on the floor whose outline the two orbits
+// saw differently; it is now the same object in place (sameInPlace), not a change.
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -24,7 +25,7 @@ TEST(Demo, TabletopFindsEveryChangeAndWritesItsReport) {
   EXPECT_GE(j["recall"].get<double>(), 0.95);
   EXPECT_EQ(j["removed"]["missed"].get<int>(), 0);
   EXPECT_EQ(j["added"]["missed"].get<int>(), 0);
-  EXPECT_LE(j["wrong"].get<int>(), 1);  // target 0: see the file comment
+  EXPECT_EQ(j["wrong"].get<int>(), 0);
   EXPECT_GE(j["f1"].get<double>(), 0.9);
   EXPECT_GT(j["timings"]["frames"].get<int>(), 0);
   std::ifstream md(tmp.file("report.md"));

@@ -187,6 +187,128 @@ TEST(ShapeDistance, SameObjectIsCloseAndDifferentObjectsAreFar) {
   EXPECT_TRUE(std::isinf(shapeDistance(a, ShapeSignature{})));
 }
 
+// ---- sameInPlace, on hand-made floor height maps (7 mm cells): a 9 x 9 cell table leg cut at
+// the top of the band (0.30 m), as two sessions see it --------------------------------------------
+
+constexpr int kGrid = 60;
+constexpr double kCell = 0.007;
+constexpr float kLegTop = 0.30f;
+const Pose kId = Pose::Identity();
+
+HeightMap floorMap() {
+  HeightMap hm;
+  hm.width = hm.height = kGrid;
+  hm.cell_size = kCell;
+  hm.heights.assign(hm.numCells(), 0.0f);
+  return hm;
+}
+/// Cells [x0, x0 + w) x [y0, y0 + h) set to `height`.
+void fill(HeightMap& hm, int x0, int y0, int w, int h, float height) {
+  for (int y = y0; y < y0 + h; ++y)
+    for (int x = x0; x < x0 + w; ++x) hm.at(x, y) = height;
+}
+/// The object cells of `hm` (heights above h_obj).
+std::vector<Eigen::Vector2i> objectCells(const HeightMap& hm) {
+  std::vector<Eigen::Vector2i> out;
+  for (int y = 0; y < hm.height; ++y)
+    for (int x = 0; x < hm.width; ++x)
+      if (hm.at(x, y) > Config{}.h_obj) out.emplace_back(x, y);
+  return out;
+}
+/// The leg at cells [25, 34)^2 with, on its +x side, a 2-cell streak of mixed pixels between its
+/// edge and the floor (heights 0.26 and 0.24 m over 6 rows): the outline one orbit sees.
+HeightMap legWithStreak() {
+  HeightMap hm = floorMap();
+  fill(hm, 25, 25, 9, 9, kLegTop);
+  fill(hm, 34, 27, 1, 6, 0.26f);
+  fill(hm, 35, 27, 1, 6, 0.24f);
+  return hm;
+}
+
+TEST(SameInPlace, ALegWhoseOutlineDiffersIsTheSameObject) {
+  const Config cfg;
+  HeightMap other = floorMap();
+  fill(other, 25, 25, 9, 9, kLegTop);  // the other orbit: the leg's outline only
+  const HeightMap src = legWithStreak();
+  const InPlaceMatch m =
+      sameInPlace(src, objectCells(src), other, computeObjectMap(other, cfg), kId);
+  EXPECT_EQ(m.target_cells, 81);
+  EXPECT_NEAR(m.overlap, 81.0 / 93.0, 1e-9);  // the 12 streak cells land on the floor
+  EXPECT_LT(m.shift, 0.006);                  // < 1 cell: the streak pulls the centroid
+  EXPECT_LT(m.shift, kInPlaceShiftFraction * m.size);
+  EXPECT_LT(m.shape_distance, kMovedShapeDistance);
+  EXPECT_TRUE(m.same());
+  // And the other way round (the leg without its streak against the streaked one).
+  const InPlaceMatch r =
+      sameInPlace(other, objectCells(other), src, computeObjectMap(src, cfg), kId);
+  EXPECT_EQ(r.target_cells, 93);
+  EXPECT_TRUE(r.same());
+}
+
+TEST(SameInPlace, AMovedReplacedOrNewObjectIsNot) {
+  const Config cfg;
+  const HeightMap src = legWithStreak();
+  const std::vector<Eigen::Vector2i> cells = objectCells(src);
+  // Moved 4.2 cm (6 cells) along x: footprints still overlap, the centroid shift gives it away.
+  HeightMap moved = floorMap();
+  fill(moved, 31, 25, 9, 9, kLegTop);
+  const InPlaceMatch mv = sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), kId);
+  EXPECT_GT(mv.shift, 0.03);
+  EXPECT_FALSE(mv.same());
+  // The same registration error carried by T instead: in place again.
+  Pose T = Pose::Identity();
+  T.translation() = Eigen::Vector3d(6 * kCell, 0.0, 0.0);
+  EXPECT_TRUE(sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), T).same());
+  // Replaced in place by a lower object (12 cm) of the same footprint: the shape differs.
+  HeightMap lower = floorMap();
+  fill(lower, 25, 25, 9, 9, 0.12f);
+  const InPlaceMatch lo = sameInPlace(src, cells, lower, computeObjectMap(lower, cfg), kId);
+  EXPECT_GT(lo.overlap, 0.5);
+  EXPECT_GT(lo.shape_distance, kMovedShapeDistance);
+  EXPECT_FALSE(lo.same());
+  // Replaced by a much larger object (the leg stood on its footprint): overlap and shape differ.
+  HeightMap large = floorMap();
+  fill(large, 15, 15, 30, 30, kLegTop);
+  const InPlaceMatch lg = sameInPlace(src, cells, large, computeObjectMap(large, cfg), kId);
+  EXPECT_LT(lg.overlap, 0.5);
+  EXPECT_FALSE(lg.same());
+  // Free floor in the other map (a new object): no target object at all.
+  const HeightMap empty = floorMap();
+  const InPlaceMatch no = sameInPlace(src, cells, empty, computeObjectMap(empty, cfg), kId);
+  EXPECT_EQ(no.target_cells, 0);
+  EXPECT_FALSE(no.same());
+}
+
+/// A candidate on plane 0 of its map, compared with plane 0 of the other, on column (1, 1).
+CandidateChange candidate(BlobValidation::Verdict verdict, bool same_in_place) {
+  CandidateChange c;
+  c.region.plane_id = 0;
+  c.region.columns = {Eigen::Vector2i(1, 1)};
+  c.region.verdict = verdict;
+  c.target_plane_id = 0;
+  c.target_columns = {Eigen::Vector2i(1, 1)};
+  c.same_in_place = same_in_place;
+  return c;
+}
+
+TEST(AssembleEvents, TheSameObjectInPlaceIsNoEventUnlessTheOtherSideHas3DEvidence) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // Unknown and the other map has it in place: static, on either side.
+  EXPECT_TRUE(assembleEvents({candidate(V::Unknown, true)}, {}, cfg).empty());
+  EXPECT_TRUE(assembleEvents({}, {candidate(V::Unknown, true)}, cfg).empty());
+  // With 3D evidence, or not in place: an event.
+  EXPECT_EQ(assembleEvents({candidate(V::Changed, true)}, {}, cfg).size(), 1u);
+  EXPECT_EQ(assembleEvents({}, {candidate(V::Unknown, false)}, cfg).size(), 1u);
+  // The other direction found a change with 3D evidence on its footprint: both sides stay, as
+  // one replaced event.
+  const auto e = assembleEvents({candidate(V::Unknown, true)}, {candidate(V::Changed, false)}, cfg);
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].type, ChangeType::Replaced);
+  EXPECT_FALSE(e[0].reference.empty());
+  EXPECT_FALSE(e[0].current.empty());
+}
+
 TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
   ChangeDetector det(beforeMap(), Config{});
   std::vector<ChangeEvent> heard;
