@@ -3,11 +3,13 @@
 
 #include "planesdf/change.hpp"
 
+#include <omp.h>
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <functional>
 #include <limits>
 #include <map>
@@ -50,6 +52,23 @@ const ChangeRegion& ChangeEvent::primary() const {
 }
 
 namespace {
+
+/// Runs f(0..n-1) on up to `threads` threads (0: all cores), dynamically scheduled; the first
+/// exception thrown by any f is rethrown once all have finished.
+void parallelFor(int n, int threads, const std::function<void(int)>& f) {
+  const int t = threads > 0 ? threads : std::max(1, omp_get_max_threads());
+  std::exception_ptr error;
+#pragma omp parallel for num_threads(t) if (t > 1 && n > 1) schedule(dynamic, 1)
+  for (int i = 0; i < n; ++i) {
+    try {
+      f(i);
+    } catch (...) {
+#pragma omp critical(planesdf_parallel_for_error)
+      if (!error) error = std::current_exception();
+    }
+  }
+  if (error) std::rethrow_exception(error);
+}
 
 /// Planes with |n·n'| below this are not parallel (see computePlaneMaps).
 constexpr double kParallelPlaneCos = 0.7;
@@ -696,22 +715,38 @@ std::vector<CandidateChange> compareMatchedPair(
 Pose sessionCorrection(const Map& reference, const Map& current,
                        const std::vector<PlaneMatch>& forward_matches,
                        const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg) {
+  // The horizontal pairs, refined independently (in parallel; the maps are computed first, in
+  // order, since `maps` may compute them lazily), then the first with the largest gain wins.
+  std::vector<std::size_t> horizontal;
+  for (std::size_t i = 0; i < forward_matches.size(); ++i) {
+    const PlaneMatch& m = forward_matches[i];
+    if (reference.planes()[static_cast<std::size_t>(m.source_id)].plane.orientation !=
+            Plane::Orientation::Horizontal ||
+        current.planes()[static_cast<std::size_t>(m.target_id)].plane.orientation !=
+            Plane::Orientation::Horizontal)
+      continue;
+    horizontal.push_back(i);
+    maps(true, m.source_id);
+    maps(false, m.target_id);
+  }
+  std::vector<Pose> T(horizontal.size());
+  std::vector<InPlaneRefinement> r(horizontal.size());
+  parallelFor(static_cast<int>(horizontal.size()), cfg.threads, [&](int k) {
+    const PlaneMatch& m = forward_matches[horizontal[static_cast<std::size_t>(k)]];
+    T[k] = m.T_target_source_local;
+    r[k] =
+        refineInPlane(maps(true, m.source_id).heights, maps(false, m.target_id).heights, T[k], cfg);
+  });
   Pose correction = Pose::Identity();
   int best_gain = 0;
-  for (const PlaneMatch& m : forward_matches) {
-    const Plane& ps = reference.planes()[static_cast<std::size_t>(m.source_id)].plane;
-    const Plane& pt = current.planes()[static_cast<std::size_t>(m.target_id)].plane;
-    if (ps.orientation != Plane::Orientation::Horizontal ||
-        pt.orientation != Plane::Orientation::Horizontal)
-      continue;
-    Pose T = m.T_target_source_local;
-    const InPlaneRefinement r =
-        refineInPlane(maps(true, m.source_id).heights, maps(false, m.target_id).heights, T, cfg);
-    const int gain = r.mismatches_before - r.mismatches_after;
-    if (!r.applied || gain <= best_gain) continue;
+  for (std::size_t k = 0; k < horizontal.size(); ++k) {
+    const PlaneMatch& m = forward_matches[horizontal[k]];
+    const int gain = r[k].mismatches_before - r[k].mismatches_after;
+    if (!r[k].applied || gain <= best_gain) continue;
     best_gain = gain;
     // T = D * T0 in target-local coordinates: C = F_t * D * F_t^-1 in the world.
-    correction = pt.frame() * (T * m.T_target_source_local.inverse()) * pt.frame().inverse();
+    const Pose Ft = current.planes()[static_cast<std::size_t>(m.target_id)].plane.frame();
+    correction = Ft * (T[k] * m.T_target_source_local.inverse()) * Ft.inverse();
   }
   return correction;
 }
@@ -749,6 +784,28 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
   RefinedTransforms refined;
   const std::vector<PlaneMatch> forward_matches =
       uniqueMatches(registerPlanes(reference, current, cfg));
+  const std::vector<PlaneMatch> backward_matches =
+      uniqueMatches(registerPlanes(current, reference, cfg));
+  // The maps of every matched plane, in parallel (computed once; read-only from here on).
+  {
+    std::vector<std::pair<bool, int>> needed;
+    for (const PlaneMatch& m : forward_matches) {
+      needed.emplace_back(true, m.source_id);
+      needed.emplace_back(false, m.target_id);
+    }
+    for (const PlaneMatch& m : backward_matches) {
+      needed.emplace_back(false, m.source_id);
+      needed.emplace_back(true, m.target_id);
+    }
+    std::sort(needed.begin(), needed.end());
+    needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
+    parallelFor(static_cast<int>(needed.size()), cfg.threads, [&](int k) {
+      const auto [ref, id] = needed[static_cast<std::size_t>(k)];
+      const auto i = static_cast<std::size_t>(id);
+      (ref ? rmaps : cmaps)[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg);
+    });
+    for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
+  }
   const Pose correction =
       cfg.refine_inplane
           ? sessionCorrection(
@@ -756,15 +813,26 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
                 [&](bool ref, int id) -> const PlaneMaps& { return mapsOf(ref, id); }, cfg)
           : Pose::Identity();
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
-    const Map& src = forward ? reference : current;
-    const Map& tgt = forward ? current : reference;
-    for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg))) {
-      if (forward) m = corrected(m, current, correction);
-      PlanePairResult res;
-      auto c = compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
-                                  mapsOf(!forward, m.target_id), refined, cfg, options, &res);
-      for (auto& x : c) (forward ? removed : added).push_back(std::move(x));
-      set.pairs.push_back(std::move(res));
+    std::vector<PlaneMatch> matches = forward ? forward_matches : backward_matches;
+    if (forward)
+      for (PlaneMatch& m : matches) m = corrected(m, current, correction);
+    // The pairs of one direction are independent: in parallel, each with its own share of the
+    // refined transforms, merged in pair order.
+    std::vector<PlanePairResult> results(matches.size());
+    std::vector<std::vector<CandidateChange>> found(matches.size());
+    std::vector<RefinedTransforms> own(matches.size());
+    parallelFor(static_cast<int>(matches.size()), cfg.threads, [&](int k) {
+      const auto i = static_cast<std::size_t>(k);
+      const PlaneMatch& m = matches[i];
+      if (!forward) own[i] = refined;  // read only backwards
+      found[i] =
+          compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
+                             mapsOf(!forward, m.target_id), own[i], cfg, options, &results[i]);
+    });
+    for (std::size_t i = 0; i < matches.size(); ++i) {
+      if (forward) refined.insert(own[i].begin(), own[i].end());
+      for (auto& x : found[i]) (forward ? removed : added).push_back(std::move(x));
+      set.pairs.push_back(std::move(results[i]));
     }
   }
   set.events = assembleEvents(std::move(removed), std::move(added), cfg);

@@ -149,9 +149,12 @@ struct Score {
 /// Scores the samples moved by a yaw `yaw` about `pivot` then a shift `shift` (target frame).
 /// With `slack` > 0 a sample agrees when any target cell within `slack` cells (Chebyshev) agrees
 /// (the coarse search: its steps are 2 cells, so the right answer is at most 1 cell away).
+/// Stops early, returning a partial score with more than `max_mismatches` mismatches, once the
+/// count passes `max_mismatches` (such a candidate cannot beat one with that many).
 Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
                      const Eigen::Vector2d& pivot, double yaw, const Eigen::Vector2d& shift,
-                     double delta_h, int slack = 0) {
+                     double delta_h, int slack = 0,
+                     int max_mismatches = std::numeric_limits<int>::max()) {
   const double c = std::cos(yaw);
   const double s = std::sin(yaw);
   const double inv = 1.0 / tgt.cell_size;
@@ -174,7 +177,7 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
       // views); agreeing samples lost at the borders of the observed area do not count.
       if (smp.mismatched) {
         ++sc.compared;
-        ++sc.mismatches;
+        if (++sc.mismatches > max_mismatches) return sc;
         sum += cap;
       }
       continue;
@@ -188,7 +191,7 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
         diff = std::min(diff, std::abs(static_cast<double>(hn) - static_cast<double>(smp.h)));
       }
     ++sc.compared;
-    if (diff > delta_h) ++sc.mismatches;
+    if (diff > delta_h && ++sc.mismatches > max_mismatches) return sc;
     sum += std::min(diff, cap);
   }
   sc.mean_abs = sc.compared > 0 ? sum / sc.compared : 0.0;
@@ -301,7 +304,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
     bool any = false;
     for (const Cand& k : cands) {
       const Score sc = scoreCandidate(smp, tgt, pivot, k.yaw_deg * kPi / 180.0,
-                                      Eigen::Vector2d(k.du, k.dv), cfg.delta_h, slack);
+                                      Eigen::Vector2d(k.du, k.dv), cfg.delta_h, slack,
+                                      any ? best_s->mismatches : std::numeric_limits<int>::max());
       if (!any || better(sc, *best_s)) {
         *best_s = sc;
         *best_c = k;

@@ -123,6 +123,25 @@ TEST(DetectChanges, RemovedAddedAndMovedObjectsAreTypedAndLocated) {
   for (std::size_t i = 0; i < s.events.size(); ++i) EXPECT_EQ(s.events[i].id, int(i) + 1);
 }
 
+TEST(DetectChanges, SameResultOnOneAndTwoThreads) {
+  // Plane maps, the session correction and the pairs of each direction run in parallel; the
+  // result is merged in pair order, so it equals the single-threaded one exactly.
+  Config one, two;
+  one.threads = 1;
+  two.threads = 2;
+  const ChangeSet a = detectChanges(beforeMap(), afterMap(), one);
+  const ChangeSet b = detectChanges(beforeMap(), afterMap(), two);
+  ASSERT_EQ(a.events.size(), 3u);
+  EXPECT_EQ(changesToJson(a.events), changesToJson(b.events));
+  ASSERT_EQ(a.pairs.size(), b.pairs.size());
+  for (std::size_t i = 0; i < a.pairs.size(); ++i) {
+    EXPECT_EQ(a.pairs[i].reference_to_current, b.pairs[i].reference_to_current);
+    EXPECT_EQ(a.pairs[i].match.source_id, b.pairs[i].match.source_id);
+    EXPECT_TRUE(a.pairs[i].match.T_target_source_local.isApprox(
+        b.pairs[i].match.T_target_source_local, 1e-15));
+  }
+}
+
 TEST(DetectChanges, OutputsFollowTheDesignContract) {
   DetectOptions opt;
   opt.keep_stages = true;
