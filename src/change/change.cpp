@@ -135,6 +135,30 @@ void finishRegion(ChangeRegion& r, const TsdfVolume& vol, const Plane& plane) {
   if (!r.voxels.empty()) r.centroid = sum / static_cast<double>(r.voxels.size());
 }
 
+/// Cheap pre-test of the points a pair's point loops keep: height above `plane` (its local z)
+/// within [lo, hi], with 1 mm of slack for rounding (the loops test exactly).
+struct BandFilter {
+  Eigen::Vector3d n;
+  double d, lo, hi;
+  BandFilter(const Plane& plane, double lo_h, double hi_h)
+      : n(plane.frame_axes.col(2)),
+        d(-plane.frame_axes.col(2).dot(plane.frame_origin)),
+        lo(lo_h - 1e-3),
+        hi(hi_h + 1e-3) {}
+  bool operator()(const Eigen::Vector3f& p) const {
+    const double h = n.dot(p.cast<double>()) + d;
+    return h >= lo && h <= hi;
+  }
+};
+
+/// Largest observed height of a height map (0 when none).
+double maxHeight(const HeightMap& hm) {
+  float m = 0.0f;
+  for (const float h : hm.heights)
+    if (h != kUnobserved) m = std::max(m, h);
+  return static_cast<double>(m);
+}
+
 /// Observed voxels of column (i, j) with centre height in [lo, hi].
 void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, float w_min,
                   std::vector<Eigen::Vector3i>& out) {
@@ -388,6 +412,27 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const double trunc = src.volume.truncation();
   const double lo_flat = 0.5 * cfg.h_obj;
 
+  // Per target object label, the indices of the target points standing on it (on its cells, from
+  // lo_flat to the cell's height + one voxel), computed once, when a candidate first needs them.
+  std::map<int, std::vector<std::uint32_t>> target_object_points;
+  bool target_object_points_done = false;
+  const auto target_objects_points = [&]() -> const std::map<int, std::vector<std::uint32_t>>& {
+    if (target_object_points_done) return target_object_points;
+    target_object_points_done = true;
+    const BandFilter in_band(tgt.plane, lo_flat, maxHeight(ht) + vs);
+    for (std::size_t i = 0; i < target_points.size(); ++i) {
+      if (!in_band(target_points[i])) continue;
+      const Eigen::Vector3d l = tgt.plane.toLocal(target_points[i].cast<double>());
+      const Eigen::Vector2i c = ot.cellOf(l.head<2>());
+      if (!ot.inBounds(c.x(), c.y())) continue;
+      const int label = ot.at(c.x(), c.y());
+      if (label <= 0) continue;
+      if (l.z() >= lo_flat && l.z() <= ht.at(c.x(), c.y()) + vs)
+        target_object_points[label].push_back(static_cast<std::uint32_t>(i));
+    }
+    return target_object_points;
+  };
+
   std::vector<CandidateChange> out;
   // Per cell: index of the candidate it belongs to and its height range.
   std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
@@ -475,12 +520,15 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       }
       to.shape = signatureOf(ht, cells);
       finishRegion(to, tgt.volume, tgt.plane);
-      for (const auto& p : target_points) {
-        const Eigen::Vector3d l = tgt.plane.toLocal(p.cast<double>());
-        const Eigen::Vector2i c = ot.cellOf(l.head<2>());
-        if (!ot.inBounds(c.x(), c.y()) || target_labels.count(ot.at(c.x(), c.y())) == 0) continue;
-        if (l.z() >= lo_flat && l.z() <= ht.at(c.x(), c.y()) + vs) to.points.push_back(p);
+      // Its points: those standing on its cells within its heights (input order).
+      std::vector<std::uint32_t> picked;
+      for (const int label : target_labels) {
+        const auto it = target_objects_points().find(label);
+        if (it != target_objects_points().end())
+          picked.insert(picked.end(), it->second.begin(), it->second.end());
       }
+      std::sort(picked.begin(), picked.end());
+      for (const std::uint32_t i : picked) to.points.push_back(target_points[i]);
     }
     out.push_back(std::move(cand));
   }
@@ -514,7 +562,10 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     cell_owner.swap(owner);
     cell_lo.swap(lo_d);
     cell_hi.swap(hi_d);
+    const BandFilter in_band(
+        src.plane, lo_flat, static_cast<double>(*std::max_element(cell_hi.begin(), cell_hi.end())));
     for (const auto& p : source_points) {
+      if (!in_band(p)) continue;
       const Eigen::Vector3d l = src.plane.toLocal(p.cast<double>());
       const Eigen::Vector2i c = hs.cellOf(l.head<2>());
       if (!hs.inBounds(c.x(), c.y())) continue;
