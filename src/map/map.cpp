@@ -1,5 +1,7 @@
 #include "planesdf/map.hpp"
 
+#include <omp.h>
+
 #include <chrono>
 #include <cmath>
 
@@ -16,6 +18,11 @@ using Clock = std::chrono::steady_clock;
 
 double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+/// cfg.threads, 0 meaning every core.
+int threadCount(const Config& cfg) {
+  return cfg.threads > 0 ? cfg.threads : std::max(1, omp_get_max_threads());
 }
 
 /// World points of a depth frame, one per pixel (NaN where the depth is invalid).
@@ -159,17 +166,25 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   // object threshold and inside its band (plane surfaces themselves never change).
   const double h_lo = 0.5 * cfg_.h_obj;
   const bool dedup = deduplicate && cfg_.point_cell > 0.0;
-  for (const auto& p : pts) {
+  // The band test in parallel, then the (order-dependent) de-duplication in input order.
+  const auto n = static_cast<std::ptrdiff_t>(pts.size());
+  std::vector<std::uint8_t> keep(pts.size(), 0);
+  const int threads = threadCount(cfg_);
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static)
+  for (std::ptrdiff_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f& p = pts[static_cast<std::size_t>(i)];
     if (!PointCloud::isValid(p)) continue;
-    bool keep = false;
     for (const auto& ps : planes_) {
       const double h = ps.plane.signedDistance(p.cast<double>());
       if (h >= h_lo && h <= cfg_.fuse_band) {
-        keep = true;
+        keep[static_cast<std::size_t>(i)] = 1;
         break;
       }
     }
-    if (!keep) continue;
+  }
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    if (!keep[i]) continue;
+    const Eigen::Vector3f& p = pts[i];
     if (dedup && !point_cells_.insert(detail::cellKeyOf(p, cfg_.point_cell), 0).second) continue;
     points_.push_back(p);
   }
