@@ -43,6 +43,7 @@ const std::vector<Param>& params() {
       {"min_depth", &Config::min_depth},
       {"max_weight", &Config::max_weight},
       {"threads", &Config::threads},
+      {"simd", &Config::simd},
       {"w_min", &Config::w_min},
       {"h_obj", &Config::h_obj},
       {"delta_n", &Config::delta_n},

@@ -11,6 +11,13 @@
 #include "planesdf/error.hpp"
 #include "planesdf/tsdf.hpp"
 
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define PLANESDF_AVX2_KERNEL 1
+#include <immintrin.h>
+#else
+#define PLANESDF_AVX2_KERNEL 0
+#endif
+
 namespace planesdf {
 
 namespace {
@@ -368,6 +375,10 @@ constexpr float kSilhouetteOffsetPx = 0.5f;
 /// Saturation of the per-pixel edge distance (pixels).
 constexpr int kFarEdge = 255;
 
+/// Bytes after the last pixel of the per-pixel byte images: the AVX2 kernel reads a byte as
+/// the low byte of a 32-bit gather.
+constexpr std::size_t kGatherPadding = 4;
+
 /// Everything pass 2 reads from the frame.
 struct FrameMeasurements {
   std::vector<PixelMeasurement> pixels;  ///< row-major, one per pixel
@@ -479,8 +490,8 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
   fm.guard.assign(static_cast<std::size_t>(fm.tiles_x) * fm.tiles_y,
                   std::numeric_limits<float>::infinity());
   fm.tile_max_depth.assign(fm.guard.size(), -std::numeric_limits<float>::infinity());
-  fm.edge_dist.resize(static_cast<std::size_t>(W) * H);
-  fm.silhouette_dist.resize(static_cast<std::size_t>(W) * H);
+  fm.edge_dist.resize(static_cast<std::size_t>(W) * H + kGatherPadding);
+  fm.silhouette_dist.resize(static_cast<std::size_t>(W) * H + kGatherPadding);
   std::size_t n_valid = 0;
   double sum_depth = 0.0;
 #pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : n_valid, sum_depth)
@@ -560,7 +571,7 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
   const float inv_bs = static_cast<float>(1.0 / vol.blockSize());
   const Eigen::Matrix3f& R = cam.R_lc;
   const Eigen::Vector3f& t = cam.t_lc;
-  in_band.resize(static_cast<std::size_t>(W) * H);
+  in_band.resize(static_cast<std::size_t>(W) * H + kGatherPadding);
   std::vector<std::vector<std::uint64_t>> new_keys(threads);
   std::size_t count = 0;
 #pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : count)
@@ -728,7 +739,210 @@ struct DepthUpdateParams {
   float voxel;
   Band band;
   bool guard_behind;  ///< cfg.silhouette_guard_behind
+  bool simd;          ///< use the AVX2 row kernel (cfg.simd and the CPU has AVX2)
 };
+
+/// What the voxel loop of one block reads: the frame's measurements, the camera and the
+/// block's x axis in camera coordinates (one row of voxels runs along it).
+struct RowKernel {
+  const PixelMeasurement* pixels;
+  const float* xn;
+  const float* yn;
+  const float* guard;
+  const std::uint8_t* edge_dist;
+  const std::uint8_t* silhouette_dist;
+  const std::uint8_t* in_band;
+  int W, H, tiles_x;
+  float ax_x, ax_y, ax_z;
+  float fx, fy, cx, cy, z_min, z_max, w_lim, h_lim;
+  float trunc, behind, guard_sdf, edge_scale, depth_scale, max_weight;
+  bool guard_behind;
+};
+
+/// Fuses the row of kTsdfBlockSide voxels whose first centre is (rx, ry, rz) in camera
+/// coordinates (the reference implementation; fuseRowAvx2 gives bit-identical results).
+inline void fuseRowScalar(const RowKernel& k, float rx, float ry, float rz, TsdfVoxel* voxels,
+                          BlockOutcome& out) {
+  for (int x = 0; x < kTsdfBlockSide; ++x) {
+    const float fxx = static_cast<float>(x);
+    const float px = rx + fxx * k.ax_x, py = ry + fxx * k.ax_y, zc = rz + fxx * k.ax_z;
+    if (!(zc >= k.z_min && zc <= k.z_max)) continue;
+    const float inv = 1.0f / zc;
+    const float uf = k.fx * px * inv + k.cx;
+    const float vf = k.fy * py * inv + k.cy;
+    if (!(uf >= -0.5f && uf < k.w_lim && vf >= -0.5f && vf < k.h_lim)) continue;
+    out.in_view = true;
+    const int ui = std::min(static_cast<int>(uf + 0.5f), k.W - 1);
+    const int vi = std::min(static_cast<int>(vf + 0.5f), k.H - 1);
+    const std::size_t pix = static_cast<std::size_t>(vi) * k.W + ui;
+    const PixelMeasurement m = k.pixels[pix];
+    if (m.dq == 0) continue;
+    const float q =
+        (m.nx * (px - k.xn[ui] * zc) + m.ny * (py - k.yn[vi] * zc)) * (1.0f / kNormalScale) +
+        (m.dq * k.depth_scale - zc);
+    if (q < -k.trunc) continue;  // behind the surface by more than the truncation (in depth)
+    const float cos_ray = static_cast<float>(m.kq < 0 ? -m.kq : m.kq) * (1.0f / kCosineScale);
+    float sdf = cos_ray * q;
+    if (sdf < -k.behind) continue;  // deeper behind the surface than the band behind it
+    // Silhouette guard: |sdf| (at most trunc) against the lateral distance to an edge.
+    if (std::fabs(sdf) > k.guard_sdf &&
+        k.guard[(vi >> kGuardTileShift) * k.tiles_x + (ui >> kGuardTileShift)] <= zc + k.trunc) {
+      if (sdf > 0.0f) {
+        if (std::min(sdf, k.trunc) * k.edge_scale > k.edge_dist[pix] * zc) continue;
+      } else if (k.guard_behind) {
+        // Behind: only a silhouette can put the voxel beyond the object's hidden side, and
+        // only if it lies within |sdf| * sin(angle between ray and surface) of the voxel's
+        // line of sight (the ray meets the surface |sdf| / cos before the voxel).
+        const float sin_ray = std::sqrt(std::max(0.0f, 1.0f - cos_ray * cos_ray));
+        const float edge_px = k.silhouette_dist[pix] + kSilhouetteOffsetPx;
+        if (std::min(-sdf, k.trunc) * sin_ray * k.edge_scale > edge_px * zc) continue;
+      }
+    }
+    if (sdf >= k.trunc)
+      sdf = k.trunc;
+    else if (m.kq < 0 || !k.in_band[pix])
+      continue;  // grazing or outside the band: carves free space only
+    out.changed |= fuseVoxel(voxels[x], sdf, k.max_weight);
+    ++out.updates;
+  }
+}
+
+#if PLANESDF_AVX2_KERNEL
+/// fuseRowScalar for the 8 voxels of a row at once (AVX2, no FMA: every lane performs the
+/// scalar code's operations in the same order, so the results are bit-identical). Lanes that
+/// the scalar code leaves by `continue` are masked out; gathers read only active lanes.
+__attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, float ry, float rz,
+                                                 TsdfVoxel* voxels, BlockOutcome& out) {
+  static_assert(kTsdfBlockSide == 8, "one AVX2 vector per row of voxels");
+  const __m256 xi = _mm256_setr_ps(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+  const __m256 px = _mm256_add_ps(_mm256_set1_ps(rx), _mm256_mul_ps(xi, _mm256_set1_ps(k.ax_x)));
+  const __m256 py = _mm256_add_ps(_mm256_set1_ps(ry), _mm256_mul_ps(xi, _mm256_set1_ps(k.ax_y)));
+  const __m256 zc = _mm256_add_ps(_mm256_set1_ps(rz), _mm256_mul_ps(xi, _mm256_set1_ps(k.ax_z)));
+  __m256 m = _mm256_and_ps(_mm256_cmp_ps(zc, _mm256_set1_ps(k.z_min), _CMP_GE_OQ),
+                           _mm256_cmp_ps(zc, _mm256_set1_ps(k.z_max), _CMP_LE_OQ));
+  if (_mm256_movemask_ps(m) == 0) return;
+  const __m256 inv = _mm256_div_ps(_mm256_set1_ps(1.0f), zc);
+  const __m256 uf = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(k.fx), px), inv),
+                                  _mm256_set1_ps(k.cx));
+  const __m256 vf = _mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(k.fy), py), inv),
+                                  _mm256_set1_ps(k.cy));
+  const __m256 lo = _mm256_set1_ps(-0.5f);
+  m = _mm256_and_ps(m, _mm256_and_ps(_mm256_cmp_ps(uf, lo, _CMP_GE_OQ),
+                                     _mm256_cmp_ps(uf, _mm256_set1_ps(k.w_lim), _CMP_LT_OQ)));
+  m = _mm256_and_ps(m, _mm256_and_ps(_mm256_cmp_ps(vf, lo, _CMP_GE_OQ),
+                                     _mm256_cmp_ps(vf, _mm256_set1_ps(k.h_lim), _CMP_LT_OQ)));
+  if (_mm256_movemask_ps(m) == 0) return;
+  out.in_view = true;
+  const __m256 half = _mm256_set1_ps(0.5f);
+  __m256i mi = _mm256_castps_si256(m);
+  // Pixel indices (inactive lanes: 0, so that no index is ever out of range).
+  const __m256i ui = _mm256_and_si256(
+      mi,
+      _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(uf, half)), _mm256_set1_epi32(k.W - 1)));
+  const __m256i vi = _mm256_and_si256(
+      mi,
+      _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(vf, half)), _mm256_set1_epi32(k.H - 1)));
+  const __m256i pix = _mm256_add_epi32(_mm256_mullo_epi32(vi, _mm256_set1_epi32(k.W)), ui);
+  // PixelMeasurement as two 32-bit words: (nx | ny << 16) and (dq | kq << 16).
+  const int* words = reinterpret_cast<const int*>(static_cast<const void*>(k.pixels));
+  const __m256i pix2 = _mm256_slli_epi32(pix, 1);
+  const __m256i zero = _mm256_setzero_si256();
+  const __m256i w0 = _mm256_mask_i32gather_epi32(zero, words, pix2, mi, 4);
+  const __m256i w1 = _mm256_mask_i32gather_epi32(zero, words + 1, pix2, mi, 4);
+  const __m256i dq = _mm256_and_si256(w1, _mm256_set1_epi32(0xffff));
+  const __m256i kq = _mm256_srai_epi32(w1, 16);
+  mi = _mm256_andnot_si256(_mm256_cmpeq_epi32(dq, zero), mi);
+  m = _mm256_castsi256_ps(mi);
+  if (_mm256_movemask_ps(m) == 0) return;
+  const __m256 nx = _mm256_cvtepi32_ps(_mm256_srai_epi32(_mm256_slli_epi32(w0, 16), 16));
+  const __m256 ny = _mm256_cvtepi32_ps(_mm256_srai_epi32(w0, 16));
+  const __m256 xn = _mm256_mask_i32gather_ps(_mm256_setzero_ps(), k.xn, ui, m, 4);
+  const __m256 yn = _mm256_mask_i32gather_ps(_mm256_setzero_ps(), k.yn, vi, m, 4);
+  const __m256 tangent = _mm256_add_ps(_mm256_mul_ps(nx, _mm256_sub_ps(px, _mm256_mul_ps(xn, zc))),
+                                       _mm256_mul_ps(ny, _mm256_sub_ps(py, _mm256_mul_ps(yn, zc))));
+  const __m256 q = _mm256_add_ps(
+      _mm256_mul_ps(tangent, _mm256_set1_ps(1.0f / kNormalScale)),
+      _mm256_sub_ps(_mm256_mul_ps(_mm256_cvtepi32_ps(dq), _mm256_set1_ps(k.depth_scale)), zc));
+  const __m256 trunc = _mm256_set1_ps(k.trunc);
+  m = _mm256_and_ps(m, _mm256_cmp_ps(q, _mm256_set1_ps(-k.trunc), _CMP_NLT_UQ));
+  const __m256 cos_ray =
+      _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_abs_epi32(kq)), _mm256_set1_ps(1.0f / kCosineScale));
+  __m256 sdf = _mm256_mul_ps(cos_ray, q);
+  m = _mm256_and_ps(m, _mm256_cmp_ps(sdf, _mm256_set1_ps(-k.behind), _CMP_NLT_UQ));
+  if (_mm256_movemask_ps(m) == 0) return;
+  // Silhouette guard.
+  const __m256 abs_sdf = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), sdf);
+  __m256 g = _mm256_and_ps(m, _mm256_cmp_ps(abs_sdf, _mm256_set1_ps(k.guard_sdf), _CMP_GT_OQ));
+  if (_mm256_movemask_ps(g) != 0) {
+    const __m256i tile = _mm256_add_epi32(
+        _mm256_mullo_epi32(_mm256_srli_epi32(vi, kGuardTileShift), _mm256_set1_epi32(k.tiles_x)),
+        _mm256_srli_epi32(ui, kGuardTileShift));
+    const __m256 edge_depth = _mm256_mask_i32gather_ps(_mm256_setzero_ps(), k.guard, tile, g, 4);
+    g = _mm256_and_ps(g, _mm256_cmp_ps(edge_depth, _mm256_add_ps(zc, trunc), _CMP_LE_OQ));
+    const __m256 front = _mm256_and_ps(g, _mm256_cmp_ps(sdf, _mm256_setzero_ps(), _CMP_GT_OQ));
+    const __m256i bytes = _mm256_set1_epi32(0xff);
+    const __m256 edge_scale = _mm256_set1_ps(k.edge_scale);
+    if (_mm256_movemask_ps(front) != 0) {
+      const __m256i ed = _mm256_and_si256(
+          bytes, _mm256_mask_i32gather_epi32(zero, reinterpret_cast<const int*>(k.edge_dist), pix,
+                                             _mm256_castps_si256(front), 1));
+      const __m256 skip = _mm256_cmp_ps(_mm256_mul_ps(_mm256_min_ps(sdf, trunc), edge_scale),
+                                        _mm256_mul_ps(_mm256_cvtepi32_ps(ed), zc), _CMP_GT_OQ);
+      m = _mm256_andnot_ps(_mm256_and_ps(front, skip), m);
+    }
+    const __m256 behind = _mm256_andnot_ps(front, g);
+    if (k.guard_behind && _mm256_movemask_ps(behind) != 0) {
+      const __m256 sin_ray = _mm256_sqrt_ps(
+          _mm256_max_ps(_mm256_sub_ps(_mm256_set1_ps(1.0f), _mm256_mul_ps(cos_ray, cos_ray)),
+                        _mm256_setzero_ps()));
+      const __m256i sd = _mm256_and_si256(
+          bytes, _mm256_mask_i32gather_epi32(zero, reinterpret_cast<const int*>(k.silhouette_dist),
+                                             pix, _mm256_castps_si256(behind), 1));
+      const __m256 edge_px =
+          _mm256_add_ps(_mm256_cvtepi32_ps(sd), _mm256_set1_ps(kSilhouetteOffsetPx));
+      const __m256 neg_sdf = _mm256_xor_ps(sdf, _mm256_set1_ps(-0.0f));
+      const __m256 skip = _mm256_cmp_ps(
+          _mm256_mul_ps(_mm256_mul_ps(_mm256_min_ps(neg_sdf, trunc), sin_ray), edge_scale),
+          _mm256_mul_ps(edge_px, zc), _CMP_GT_OQ);
+      m = _mm256_andnot_ps(_mm256_and_ps(behind, skip), m);
+    }
+  }
+  // Free space clamps to trunc; nearer values need a fused (not grazing), in-band pixel.
+  const __m256 free_space = _mm256_cmp_ps(sdf, trunc, _CMP_GE_OQ);
+  sdf = _mm256_blendv_ps(sdf, trunc, free_space);
+  const __m256 near = _mm256_andnot_ps(free_space, m);
+  if (_mm256_movemask_ps(near) != 0) {
+    const __m256i in_band =
+        _mm256_and_si256(_mm256_set1_epi32(0xff),
+                         _mm256_mask_i32gather_epi32(zero, reinterpret_cast<const int*>(k.in_band),
+                                                     pix, _mm256_castps_si256(near), 1));
+    const __m256i fused = _mm256_andnot_si256(
+        _mm256_or_si256(_mm256_cmpgt_epi32(zero, kq), _mm256_cmpeq_epi32(in_band, zero)),
+        _mm256_castps_si256(near));
+    m = _mm256_or_ps(_mm256_and_ps(m, free_space), _mm256_castsi256_ps(fused));
+  }
+  int bits = _mm256_movemask_ps(m);
+  if (bits == 0) return;
+  alignas(32) float s[kTsdfBlockSide];
+  _mm256_store_ps(s, sdf);
+  while (bits != 0) {
+    const int x = __builtin_ctz(static_cast<unsigned>(bits));
+    bits &= bits - 1;
+    out.changed |= fuseVoxel(voxels[x], s[x], k.max_weight);
+    ++out.updates;
+  }
+}
+
+/// True when this CPU runs the AVX2 kernel.
+bool cpuHasAvx2() {
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+}
+#else
+bool cpuHasAvx2() {
+  return false;
+}
+#endif
 
 /// Pass 2 for one block: projects its voxel centres (memory order) and fuses them.
 BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const FrustumCull& cull,
@@ -745,23 +959,42 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   const float radius = std::sqrt(3.0f) * half * prm.voxel * 1.0001f + 1e-6f;
   if (!cull.mayIntersect(c0 + half * (ax + ay + az), radius)) return out;
 
-  // Plain float arithmetic in the voxel loop (fast in optimised and in debug builds alike).
   const float w_lim = cam.width - 0.5f, h_lim = cam.height - 0.5f;
-  const float guard_sdf = kGuardSdf * prm.voxel;
   const int W = cam.width, H = cam.height;
   const FrameMeasurements& fm = *prm.fm;
-  const PixelMeasurement* pixels = fm.pixels.data();
-  const float* xn = fm.xn.data();
-  const float* yn = fm.yn.data();
-  const float* guard = fm.guard.data();
-  const std::uint8_t* edge_dist = fm.edge_dist.data();
-  const std::uint8_t* silhouette_dist = fm.silhouette_dist.data();
   const float fx = cam.fx, fy = cam.fy, cx = cam.cx, cy = cam.cy;
-  const float trunc = prm.trunc, depth_scale = fm.depth_scale;
-  const float behind = kBehindFraction * trunc;
+  const float trunc = prm.trunc;
   // Pixels per metre of lateral distance at unit depth (the smaller focal length: the lateral
   // distance is never overestimated).
   const float edge_scale = std::min(fx, fy);
+  const RowKernel kernel{fm.pixels.data(),
+                         fm.xn.data(),
+                         fm.yn.data(),
+                         fm.guard.data(),
+                         fm.edge_dist.data(),
+                         fm.silhouette_dist.data(),
+                         prm.in_band,
+                         W,
+                         H,
+                         fm.tiles_x,
+                         ax.x(),
+                         ax.y(),
+                         ax.z(),
+                         fx,
+                         fy,
+                         cx,
+                         cy,
+                         cam.z_min,
+                         cam.z_max,
+                         w_lim,
+                         h_lim,
+                         trunc,
+                         kBehindFraction * trunc,
+                         kGuardSdf * prm.voxel,
+                         edge_scale,
+                         fm.depth_scale,
+                         prm.max_weight,
+                         prm.guard_behind};
 
   // Occlusion bound. Over the pixels the block's voxel centres can project to (nearest pixel,
   // inside the projected box of its corner centres), the largest measured depth dmax. A voxel
@@ -828,50 +1061,13 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
       const float ry = c0.y() + fz * az.y() + fyy * ay.y();
       const float rz = c0.z() + fz * az.z() + fyy * ay.z();
       TsdfVoxel* voxels = &blk.voxels[(z * kTsdfBlockSide + y) * kTsdfBlockSide];
-      for (int x = 0; x < kTsdfBlockSide; ++x) {
-        const float fxx = static_cast<float>(x);
-        const float px = rx + fxx * ax.x(), py = ry + fxx * ax.y(), zc = rz + fxx * ax.z();
-        if (!(zc >= cam.z_min && zc <= cam.z_max)) continue;
-        const float inv = 1.0f / zc;
-        const float uf = fx * px * inv + cx;
-        const float vf = fy * py * inv + cy;
-        if (!(uf >= -0.5f && uf < w_lim && vf >= -0.5f && vf < h_lim)) continue;
-        out.in_view = true;
-        const int ui = std::min(static_cast<int>(uf + 0.5f), W - 1);
-        const int vi = std::min(static_cast<int>(vf + 0.5f), H - 1);
-        const std::size_t pix = static_cast<std::size_t>(vi) * W + ui;
-        const PixelMeasurement m = pixels[pix];
-        if (m.dq == 0) continue;
-        const float q =
-            (m.nx * (px - xn[ui] * zc) + m.ny * (py - yn[vi] * zc)) * (1.0f / kNormalScale) +
-            (m.dq * depth_scale - zc);
-        if (q < -trunc) continue;  // behind the surface by more than the truncation (in depth)
-        float sdf = static_cast<float>(m.kq < 0 ? -m.kq : m.kq) * (1.0f / kCosineScale) * q;
-        if (sdf < -behind) continue;  // deeper behind the surface than the band behind it
-        // Silhouette guard: |sdf| (at most trunc) against the lateral distance to an edge.
-        if (std::fabs(sdf) > guard_sdf &&
-            guard[(vi >> kGuardTileShift) * fm.tiles_x + (ui >> kGuardTileShift)] <= zc + trunc) {
-          if (sdf > 0.0f) {
-            if (std::min(sdf, trunc) * edge_scale > edge_dist[pix] * zc) continue;
-          } else {
-            // Behind: only a silhouette can put the voxel beyond the object's hidden side, and
-            // only if it lies within |sdf| * sin(angle between ray and surface) of the voxel's
-            // line of sight (the ray meets the surface |sdf| / cos before the voxel).
-            const float cos_ray =
-                static_cast<float>(m.kq < 0 ? -m.kq : m.kq) * (1.0f / kCosineScale);
-            const float sin_ray = std::sqrt(std::max(0.0f, 1.0f - cos_ray * cos_ray));
-            const float edge_px = silhouette_dist[pix] + kSilhouetteOffsetPx;
-            if (prm.guard_behind && std::min(-sdf, trunc) * sin_ray * edge_scale > edge_px * zc)
-              continue;
-          }
-        }
-        if (sdf >= trunc)
-          sdf = trunc;
-        else if (m.kq < 0 || !prm.in_band[pix])
-          continue;  // grazing or outside the band: carves free space only
-        out.changed |= fuseVoxel(voxels[x], sdf, prm.max_weight);
-        ++out.updates;
+#if PLANESDF_AVX2_KERNEL
+      if (prm.simd) {
+        fuseRowAvx2(kernel, rx, ry, rz, voxels, out);
+        continue;
       }
+#endif
+      fuseRowScalar(kernel, rx, ry, rz, voxels, out);
     }
   }
   return out;
@@ -1034,7 +1230,8 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
                         cfg.max_weight,
                         static_cast<float>(vol.voxelSize()),
                         band,
-                        cfg.silhouette_guard_behind};
+                        cfg.silhouette_guard_behind,
+                        cfg.simd && cpuHasAvx2()};
   const std::vector<std::uint32_t> order = imageOrder(vol, slots, cam);
   const int n = static_cast<int>(order.size());
 #pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4)

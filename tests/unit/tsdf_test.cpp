@@ -649,6 +649,49 @@ TEST(TsdfFusion, SameResultWithOneAndTwoThreads) {
   EXPECT_EQ(one.revision(), two.revision());
 }
 
+TEST(TsdfFusion, SimdKernelIsBitIdenticalToTheScalarCode) {
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+  if (!__builtin_cpu_supports("avx2")) GTEST_SKIP() << "no AVX2: only the scalar code runs";
+#else
+  GTEST_SKIP() << "not x86-64: only the scalar code runs";
+#endif
+  // Noisy frames with holes and flying values exercise every branch of the voxel loop: free
+  // space, the truncation band, behind-surface limits, both silhouette guards, grazing and
+  // out-of-band pixels; with the behind guard on and off.
+  const Scene scene = sphereAndBox();
+  std::mt19937 rng(11);
+  std::normal_distribution<float> noise(0.0f, 0.002f);
+  std::uniform_real_distribution<float> uni(0.0f, 1.0f);
+  for (const bool guard_behind : {true, false}) {
+    Config simd = testConfig(2), scalar = testConfig(2);
+    simd.silhouette_guard_behind = scalar.silhouette_guard_behind = guard_behind;
+    simd.fuse_band = scalar.fuse_band = 0.06;  // the sphere's top is out of the band
+    scalar.simd = false;
+    TsdfVolume a(simd), b(scalar);
+    std::size_t updates = 0;
+    for (const Pose& T : ring(6, 0.8, 0.6, kTarget)) {
+      DepthFrame f = render(scene, smallCamera(), T);
+      for (float& d : f.depth) {
+        const float r = uni(rng);
+        if (r < 0.02f)
+          d = 0.0f;
+        else if (r < 0.03f)
+          d += 0.1f;  // a flying pixel
+        else
+          d += noise(rng);
+      }
+      const IntegrationResult ra = integrateDepth(a, f, T, simd);
+      const IntegrationResult rb = integrateDepth(b, f, T, scalar);
+      EXPECT_EQ(ra.updated_blocks, rb.updated_blocks);
+      EXPECT_EQ(ra.changed_blocks, rb.changed_blocks);
+      EXPECT_EQ(ra.num_voxel_updates, rb.num_voxel_updates);
+      updates += ra.num_voxel_updates;
+    }
+    EXPECT_GT(updates, 100000u);
+    EXPECT_TRUE(sameVolumes(a, b)) << "guard_behind " << guard_behind;
+  }
+}
+
 TEST(TsdfFusion, OneFrameAnalysisSharedByTwoVolumesEqualsFusingEachAlone) {
   const Scene scene = sphereAndBox();
   const Config cfg = testConfig();
