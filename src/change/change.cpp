@@ -189,21 +189,38 @@ float targetHeight(const HeightMap& tgt, const Pose& T, const Eigen::Vector2d& u
 /// a single view leaves voxels near silhouettes unobserved, but the height map knows the space
 /// above an observed surface is empty (its 2.5D premise), and the 3D validation needs that free
 /// space to tell "gone" from "unobserved".
+/// Only the columns (i, j) of the box flagged in `need` (row-major over the box's x-y extent)
+/// are filled: the validation reads the voxels near the blob only, and a thin blob's box can
+/// span metres.
 TsdfVolume completedRegion(const TsdfVolume& vol, const HeightMap& hm, const Eigen::Vector3i& lo,
-                           const Eigen::Vector3i& hi, float w_min) {
+                           const Eigen::Vector3i& hi, const std::vector<std::uint8_t>& need,
+                           float w_min) {
   TsdfVolume out(vol.voxelSize(), vol.truncation());
   const double vs = vol.voxelSize();
   const double trunc = vol.truncation();
   const float w_fill = std::max(w_min, 1.0f);
+  // Consecutive voxels of a column share blocks: the last source and output blocks are kept
+  // (block storage is stable; output blocks are allocated, in the same order, on first write).
+  Eigen::Vector3i src_key = Eigen::Vector3i::Constant(std::numeric_limits<int>::min());
+  Eigen::Vector3i out_key = src_key;
+  const TsdfBlock* src_block = nullptr;
+  TsdfBlock* out_block = nullptr;
+  const int nx = hi.x() - lo.x() + 1;
   for (int i = lo.x(); i <= hi.x(); ++i)
     for (int j = lo.y(); j <= hi.y(); ++j) {
+      if (!need[static_cast<std::size_t>(j - lo.y()) * nx + (i - lo.x())]) continue;
       const int x = i - hm.i0, y = j - hm.j0;
       const bool col_known = hm.inBounds(x, y) && hm.observed(x, y);
       const double surface = col_known ? static_cast<double>(hm.at(x, y)) : 0.0;
       for (int k = lo.z(); k <= hi.z(); ++k) {
         const Eigen::Vector3i v(i, j, k);
-        const TsdfVoxel* src = vol.voxel(v);
-        TsdfVoxel val = src != nullptr ? *src : TsdfVoxel{};
+        const Eigen::Vector3i b = TsdfVolume::blockOfVoxel(v);
+        if (b != src_key) {
+          src_key = b;
+          src_block = vol.findBlock(b);
+        }
+        const auto li = static_cast<std::size_t>(TsdfVolume::linearIndexInBlock(v));
+        TsdfVoxel val = src_block != nullptr ? src_block->voxels[li] : TsdfVoxel{};
         if (!(val.weight > 0.0f && val.weight >= w_min)) {
           const double above = (k + 0.5) * vs - surface;
           if (col_known && above > 0.0) {
@@ -212,11 +229,34 @@ TsdfVolume completedRegion(const TsdfVolume& vol, const HeightMap& hm, const Eig
             continue;
           }
         }
-        TsdfBlock& b = out.allocateBlock(TsdfVolume::blockOfVoxel(v));
-        b.voxels[static_cast<std::size_t>(TsdfVolume::linearIndexInBlock(v))] = val;
+        if (b != out_key) {
+          out_key = b;
+          out_block = &out.allocateBlock(b);
+        }
+        out_block->voxels[li] = val;
       }
     }
   return out;
+}
+
+/// Flags the columns of the box [lo, hi] (row-major over its x-y extent) within `margin`
+/// (Chebyshev) of one of `columns`.
+std::vector<std::uint8_t> columnsNear(std::vector<Eigen::Vector2i> columns,
+                                      const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
+                                      int margin) {
+  const int nx = hi.x() - lo.x() + 1, ny = hi.y() - lo.y() + 1;
+  std::vector<std::uint8_t> need(static_cast<std::size_t>(nx) * ny, 0);
+  std::sort(columns.begin(), columns.end(), [](const Eigen::Vector2i& a, const Eigen::Vector2i& b) {
+    return a.x() != b.x() ? a.x() < b.x() : a.y() < b.y();
+  });
+  columns.erase(std::unique(columns.begin(), columns.end()), columns.end());
+  for (const Eigen::Vector2i& c : columns)
+    for (int y = std::max(0, c.y() - lo.y() - margin);
+         y <= std::min(ny - 1, c.y() - lo.y() + margin); ++y)
+      for (int x = std::max(0, c.x() - lo.x() - margin);
+           x <= std::min(nx - 1, c.x() - lo.x() + margin); ++x)
+        need[static_cast<std::size_t>(y) * nx + x] = 1;
+  return need;
 }
 
 /// Voxel bounding box of `voxels` grown by `margin`.
@@ -308,7 +348,8 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
   if (cells.empty() || tgt.empty() || !tgt_objects.sameGeometry(tgt)) return m;
   // The blob's footprint in the target grid (distinct cells) and the objects it lands on.
   std::vector<char> mapped(tgt.numCells(), 0);
-  std::set<int> labels;
+  bool any_label = false;
+  std::vector<char> is_label(static_cast<std::size_t>(tgt_objects.numObjects()) + 1, 0);
   for (const Eigen::Vector2i& c : cells) {
     const float h = src.at(c.x(), c.y());
     Eigen::Vector2i tc;
@@ -316,9 +357,12 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
     if (!tgt.inBounds(tc.x(), tc.y())) continue;
     mapped[tgt.index(tc.x(), tc.y())] = 1;
     const int label = tgt_objects.at(tc.x(), tc.y());
-    if (label > 0) labels.insert(label);
+    if (label > 0) {
+      any_label = true;
+      is_label[static_cast<std::size_t>(label)] = 1;
+    }
   }
-  if (labels.empty()) return m;
+  if (!any_label) return m;
   std::vector<Eigen::Vector2i> obj_cells;
   Eigen::Vector2d c_obj = Eigen::Vector2d::Zero(), c_blob = Eigen::Vector2d::Zero();
   Eigen::AlignedBox2d box_obj, box_blob;
@@ -326,7 +370,8 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
   for (int y = 0; y < tgt.height; ++y)
     for (int x = 0; x < tgt.width; ++x) {
       const Eigen::Vector2d uv = tgt.cellCenter(x, y);
-      const bool in_obj = labels.count(tgt_objects.at(x, y)) != 0;
+      const int label = tgt_objects.at(x, y);
+      const bool in_obj = label > 0 && is_label[static_cast<std::size_t>(label)] != 0;
       const bool in_blob = mapped[tgt.index(x, y)] != 0;
       if (in_obj) {
         obj_cells.emplace_back(x, y);
@@ -481,8 +526,20 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       constexpr int kMargin = 4;
       const auto [slo, shi] = voxelBox(voxels, kMargin);
       const auto [tlo, thi] = mappedBox(slo, shi, T, vs, kMargin);
-      const TsdfVolume sv = completedRegion(src.volume, hs, slo, shi, cfg.w_min);
-      const TsdfVolume tv = completedRegion(tgt.volume, ht, tlo, thi, cfg.w_min);
+      // The columns the validation reads: near the blob's voxels in the source, near where
+      // they map to in the target.
+      std::vector<Eigen::Vector2i> src_cols, tgt_cols;
+      src_cols.reserve(voxels.size());
+      tgt_cols.reserve(voxels.size());
+      for (const Eigen::Vector3i& v : voxels) {
+        src_cols.emplace_back(v.x(), v.y());
+        const Eigen::Vector3i t = tgt.volume.voxelIndexAt(T * src.volume.voxelCenter(v));
+        tgt_cols.emplace_back(t.x(), t.y());
+      }
+      const TsdfVolume sv = completedRegion(
+          src.volume, hs, slo, shi, columnsNear(std::move(src_cols), slo, shi, kMargin), cfg.w_min);
+      const TsdfVolume tv = completedRegion(
+          tgt.volume, ht, tlo, thi, columnsNear(std::move(tgt_cols), tlo, thi, kMargin), cfg.w_min);
       val = validateBlob(sv, tv, T, voxels, cfg, options.validation);
     }
     r.validations.push_back(val);
@@ -508,10 +565,14 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if (!target_labels.empty()) {  // the target objects it lands on, as a region
       ChangeRegion& to = cand.target_object;
       to.plane_id = tgt.plane.id;
+      std::vector<char> is_target(static_cast<std::size_t>(ot.numObjects()) + 1, 0);
+      for (const int label : target_labels) is_target[static_cast<std::size_t>(label)] = 1;
       std::vector<Eigen::Vector2i> cells;
       for (int y = 0; y < ot.height; ++y)
-        for (int x = 0; x < ot.width; ++x)
-          if (target_labels.count(ot.at(x, y)) != 0) cells.emplace_back(x, y);
+        for (int x = 0; x < ot.width; ++x) {
+          const int label = ot.at(x, y);
+          if (label > 0 && is_target[static_cast<std::size_t>(label)]) cells.emplace_back(x, y);
+        }
       for (const auto& c : cells) {
         to.columns.emplace_back(ot.i0 + c.x(), ot.j0 + c.y());
         const float h = ht.at(c.x(), c.y());

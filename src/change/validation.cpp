@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <string>
 #include <unordered_set>
 #include <vector>
@@ -392,26 +393,6 @@ std::optional<VoxelFeature> featureInPatch(const HessianPatch& p, const Eigen::V
 
 // ---- key voxels ---------------------------------------------------------------------------
 
-/// The patch covering the blob's bounding box plus the feature margin.
-HessianPatch blobPatch(const TsdfVolume& vol, const std::vector<Eigen::Vector3i>& blob, float w_min,
-                       const ValidationParams& params) {
-  Eigen::Vector3i lo = blob.front(), hi = blob.front();
-  for (const Eigen::Vector3i& v : blob) {
-    lo = lo.cwiseMin(v);
-    hi = hi.cwiseMax(v);
-  }
-  lo.array() -= kFeatureMargin;
-  hi.array() += kFeatureMargin;
-  const Eigen::Vector3i dims = hi - lo + Eigen::Vector3i::Ones();
-  const long long cells = static_cast<long long>(dims.x()) * dims.y() * dims.z();
-  if (cells > params.max_box_voxels)
-    throw Error("", "validation: the blob's bounding box (" + std::to_string(dims.x()) + " x " +
-                        std::to_string(dims.y()) + " x " + std::to_string(dims.z()) +
-                        " voxels) exceeds max_box_voxels (" +
-                        std::to_string(params.max_box_voxels) + ")");
-  return makePatch(vol, lo, dims, w_min);
-}
-
 /// Strict local extremum of det over the 26 neighbours (ties broken by the smaller index).
 bool isLocalExtremum(const std::vector<double>& det, std::ptrdiff_t i, const HessianPatch& p) {
   const double d = det[static_cast<std::size_t>(i)];
@@ -429,29 +410,74 @@ bool isLocalExtremum(const std::vector<double>& det, std::ptrdiff_t i, const Hes
   return is_max || is_min;
 }
 
-/// Key voxels of the blob inside patch `p` (which covers the blob with the feature margin).
-std::vector<KeyVoxel> keyVoxelsInPatch(const HessianPatch& p,
-                                       const std::vector<Eigen::Vector3i>& blob, double voxel_size,
-                                       const ValidationParams& params) {
-  // det in voxel units; NaN where there is no Hessian.
-  const double inv_vs3 = 1.0 / (voxel_size * voxel_size * voxel_size);
-  std::vector<double> det(p.size(), std::nan(""));
-  for (std::size_t i = 0; i < p.size(); ++i)
-    if (p.has_hess[i]) det[i] = p.hessian(static_cast<std::ptrdiff_t>(i)).determinant() * inv_vs3;
+/// Bounding box of `voxels` (not empty) grown by kFeatureMargin.
+std::pair<Eigen::Vector3i, Eigen::Vector3i> boundsWithMargin(
+    const std::vector<Eigen::Vector3i>& voxels) {
+  Eigen::Vector3i lo = voxels.front(), hi = voxels.front();
+  for (const Eigen::Vector3i& v : voxels) {
+    lo = lo.cwiseMin(v);
+    hi = hi.cwiseMax(v);
+  }
+  return {lo.array() - kFeatureMargin, hi.array() + kFeatureMargin};
+}
 
-  std::vector<std::uint8_t> seen(p.size(), 0);
+/// Columns per side of the tiles key voxels are searched in.
+constexpr int kKeyTile = 32;
+
+/// Key voxels of `blob` (see keyVoxels). A voxel's det and its neighbours' depend only on the
+/// voxels within kFeatureMargin of it, so the blob is searched tile by tile (kKeyTile^2 columns),
+/// each with a dense patch of its voxels' box plus that margin: the result equals one patch over
+/// the blob's whole box (what the method defines), at a cost that follows the blob's voxels
+/// rather than its bounding box (a thin blob along a wall spans metres).
+std::vector<KeyVoxel> findKeyVoxels(const TsdfVolume& vol, const std::vector<Eigen::Vector3i>& blob,
+                                    float w_min, const ValidationParams& params) {
+  if (blob.empty()) return {};
+  const std::pair<Eigen::Vector3i, Eigen::Vector3i> box = boundsWithMargin(blob);
+  const Eigen::Vector3i lo = box.first, hi = box.second;  // named: the lambda below captures lo
+  const Eigen::Vector3i dims = hi - lo + Eigen::Vector3i::Ones();
+  const long long cells = static_cast<long long>(dims.x()) * dims.y() * dims.z();
+  if (cells > params.max_box_voxels)
+    throw Error("", "validation: the blob's bounding box (" + std::to_string(dims.x()) + " x " +
+                        std::to_string(dims.y()) + " x " + std::to_string(dims.z()) +
+                        " voxels) exceeds max_box_voxels (" +
+                        std::to_string(params.max_box_voxels) + ")");
+  // Linear index in the whole box (z, y, x order): the tie-break between equal |det|.
+  const auto box_index = [&](const Eigen::Vector3i& v) {
+    const Eigen::Vector3i l = v - lo;
+    return l.x() +
+           static_cast<long long>(dims.x()) * (l.y() + static_cast<long long>(dims.y()) * l.z());
+  };
+  // The blob's voxels by tile (tiles in index order, voxels in blob order).
+  std::map<std::pair<int, int>, std::vector<Eigen::Vector3i>> tiles;
+  for (const Eigen::Vector3i& v : blob)
+    tiles[{(v.x() - lo.x()) / kKeyTile, (v.y() - lo.y()) / kKeyTile}].push_back(v);
+
+  const double vs = vol.voxelSize();
+  const double inv_vs3 = 1.0 / (vs * vs * vs);
   std::vector<KeyVoxel> keys;
-  for (const Eigen::Vector3i& v : blob) {
-    const std::ptrdiff_t i = p.index(v);
-    if (seen[static_cast<std::size_t>(i)]) continue;
-    seen[static_cast<std::size_t>(i)] = 1;
-    const double d = det[static_cast<std::size_t>(i)];
-    if (!(std::abs(d) >= params.min_abs_det)) continue;  // also NaN
-    if (isLocalExtremum(det, i, p)) keys.push_back({v, d});
+  std::vector<double> det;
+  std::vector<std::uint8_t> seen;
+  for (const auto& tile : tiles) {
+    const std::vector<Eigen::Vector3i>& voxels = tile.second;
+    const auto [tlo, thi] = boundsWithMargin(voxels);
+    const HessianPatch p = makePatch(vol, tlo, thi - tlo + Eigen::Vector3i::Ones(), w_min);
+    // det in voxel units; NaN where there is no Hessian.
+    det.assign(p.size(), std::nan(""));
+    for (std::size_t i = 0; i < p.size(); ++i)
+      if (p.has_hess[i]) det[i] = p.hessian(static_cast<std::ptrdiff_t>(i)).determinant() * inv_vs3;
+    seen.assign(p.size(), 0);
+    for (const Eigen::Vector3i& v : voxels) {
+      const std::ptrdiff_t i = p.index(v);
+      if (seen[static_cast<std::size_t>(i)]) continue;
+      seen[static_cast<std::size_t>(i)] = 1;
+      const double d = det[static_cast<std::size_t>(i)];
+      if (!(std::abs(d) >= params.min_abs_det)) continue;  // also NaN
+      if (isLocalExtremum(det, i, p)) keys.push_back({v, d});
+    }
   }
   const auto stronger = [&](const KeyVoxel& a, const KeyVoxel& b) {
     if (std::abs(a.det) != std::abs(b.det)) return std::abs(a.det) > std::abs(b.det);
-    return p.index(a.voxel) < p.index(b.voxel);
+    return box_index(a.voxel) < box_index(b.voxel);
   };
   std::sort(keys.begin(), keys.end(), stronger);
   if (static_cast<int>(keys.size()) > std::max(0, params.max_key_voxels))
@@ -481,8 +507,7 @@ std::optional<Eigen::Matrix3d> hessianAt(const TsdfVolume& vol, const Eigen::Vec
 std::vector<KeyVoxel> keyVoxels(const TsdfVolume& vol, const std::vector<Eigen::Vector3i>& blob,
                                 const Config& cfg, const ValidationParams& params) {
   if (blob.empty()) return {};
-  const HessianPatch p = blobPatch(vol, blob, cfg.w_min, params);
-  return keyVoxelsInPatch(p, blob, vol.voxelSize(), params);
+  return findKeyVoxels(vol, blob, cfg.w_min, params);
 }
 
 std::optional<VoxelFeature> featureAt(const TsdfVolume& vol, const Eigen::Vector3i& v0,
@@ -553,9 +578,7 @@ BlobValidation validateBlob(const TsdfVolume& source, const TsdfVolume& target,
   BlobValidation out;
   if (blob_voxels.empty()) return out;
 
-  const HessianPatch patch = blobPatch(source, blob_voxels, cfg.w_min, params);
-  const std::vector<KeyVoxel> keys =
-      keyVoxelsInPatch(patch, blob_voxels, source.voxelSize(), params);
+  const std::vector<KeyVoxel> keys = findKeyVoxels(source, blob_voxels, cfg.w_min, params);
   out.key_voxels = static_cast<int>(keys.size());
   out.keys.resize(keys.size());
   const Eigen::Matrix3d R_source_target = T_target_source.linear().transpose();
@@ -569,8 +592,10 @@ BlobValidation validateBlob(const TsdfVolume& source, const TsdfVolume& target,
     score.voxel = key.voxel;
     score.det = key.det;
     score.target_voxel = target.voxelIndexAt(T_target_source * source.voxelCenter(key.voxel));
+    // The feature needs the voxels within kFeatureMargin of the key only.
+    const HessianPatch sp = patchAround(source, key.voxel, kFeatureMargin, cfg.w_min);
     const std::optional<VoxelFeature> f = featureInPatch(
-        patch, key.voxel, nullptr, source.truncation(), Eigen::Matrix3d::Identity(), cfg, params);
+        sp, key.voxel, nullptr, source.truncation(), Eigen::Matrix3d::Identity(), cfg, params);
     if (!f) continue;  // cannot happen for a key voxel; kept for safety
     const HessianPatch tp = patchAround(target, score.target_voxel, kFeatureMargin, cfg.w_min);
     const std::optional<VoxelFeature> g = featureInPatch(

@@ -6,11 +6,15 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <functional>
 #include <limits>
+#include <map>
+#include <optional>
 #include <random>
+#include <set>
 #include <vector>
 
 #include "planesdf/error.hpp"
@@ -318,6 +322,71 @@ TEST(ValidationKeyVoxels, OnABoxNearItsEdgesNoneInTheFlatInteriorOfAPlane) {
   const std::vector<KeyVoxel> top = keyVoxels(vol, blob, cfg, few);
   ASSERT_EQ(top.size(), 5u);
   for (int i = 0; i < 5; ++i) EXPECT_EQ(top[i].voxel, keys[i].voxel);
+}
+
+TEST(ValidationKeyVoxels, ALongBlobGivesExactlyTheKeysOfAPerVoxelSearch) {
+  // A 34 cm bar with 1 mm noise: its blob spans several of the tiles keyVoxels searches in. Its
+  // keys must be exactly those of a brute-force search on each voxel's own 5x5x5 neighbourhood
+  // (hessianAt): same voxels, same det, same order.
+  const Config cfg = testConfig();
+  const Sdf bar = standingBox(0.0, 0.0, {0.34, 0.03, 0.05});
+  const TsdfVolume vol = analyticVolume(bar, 0.001, 5);
+  const std::vector<Eigen::Vector3i> blob = blobOf(vol, bar, 0.03, cfg);
+  ValidationParams all;
+  all.max_key_voxels = 1000000;
+  const std::vector<KeyVoxel> keys = keyVoxels(vol, blob, cfg, all);
+
+  const double vs = vol.voxelSize();
+  const double inv_vs3 = 1.0 / (vs * vs * vs);
+  std::map<std::array<int, 3>, double> dets;
+  const auto det = [&](const Eigen::Vector3i& v) {
+    const std::array<int, 3> key{v.z(), v.y(), v.x()};
+    const auto it = dets.find(key);
+    if (it != dets.end()) return it->second;
+    const std::optional<Eigen::Matrix3d> h = hessianAt(vol, v, cfg.w_min);
+    const double d = h ? h->determinant() * inv_vs3 : std::nan("");
+    dets.emplace(key, d);
+    return d;
+  };
+  const auto before = [](const Eigen::Vector3i& a, const Eigen::Vector3i& b) {  // z, y, x order
+    return std::array<int, 3>{a.z(), a.y(), a.x()} < std::array<int, 3>{b.z(), b.y(), b.x()};
+  };
+  std::vector<KeyVoxel> expected;
+  std::set<std::array<int, 3>> seen;
+  for (const Eigen::Vector3i& v : blob) {
+    if (!seen.insert({v.z(), v.y(), v.x()}).second) continue;
+    const double d = det(v);
+    if (!(std::abs(d) >= all.min_abs_det)) continue;
+    bool is_max = true, is_min = true, complete = true;
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          if (dx == 0 && dy == 0 && dz == 0) continue;
+          const Eigen::Vector3i n = v + Eigen::Vector3i(dx, dy, dz);
+          const double e = det(n);
+          if (std::isnan(e)) complete = false;
+          const bool first = before(v, n);
+          if (!(d > e || (d == e && first))) is_max = false;
+          if (!(d < e || (d == e && first))) is_min = false;
+        }
+    if (complete && (is_max || is_min)) expected.push_back({v, d});
+  }
+  std::sort(expected.begin(), expected.end(), [&](const KeyVoxel& a, const KeyVoxel& b) {
+    if (std::abs(a.det) != std::abs(b.det)) return std::abs(a.det) > std::abs(b.det);
+    return before(a.voxel, b.voxel);
+  });
+  ASSERT_GE(expected.size(), 16u);
+  int x_lo = expected.front().voxel.x(), x_hi = x_lo;
+  for (const KeyVoxel& k : expected) {
+    x_lo = std::min(x_lo, k.voxel.x());
+    x_hi = std::max(x_hi, k.voxel.x());
+  }
+  EXPECT_GT(x_hi - x_lo, 40);  // keys at both ends of the bar, more than a tile apart
+  ASSERT_EQ(keys.size(), expected.size());
+  for (std::size_t i = 0; i < keys.size(); ++i) {
+    EXPECT_EQ(keys[i].voxel, expected[i].voxel) << i;
+    EXPECT_EQ(keys[i].det, expected[i].det) << i;
+  }
 }
 
 // ---- features ---------------------------------------------------------------------------------
