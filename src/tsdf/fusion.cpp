@@ -1032,6 +1032,11 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
         for (int tx = tx0; tx <= tx1; ++tx)
           dmax = std::max(dmax, fm.tile_max_depth[static_cast<std::size_t>(ty) * fm.tiles_x + tx]);
       occluded_from = dmax + trunc + kTangentSlackPx * zmax / edge_scale + 1e-3f;
+      // The measurements the voxel loop will gather, requested ahead (one cache line = 8 px).
+      const int u0 = pixel(umin, W), u1 = pixel(umax, W);
+      for (int v = pixel(vmin, H); v <= pixel(vmax, H); ++v)
+        for (int u = u0; u <= u1 + 7; u += 8)
+          __builtin_prefetch(fm.pixels.data() + static_cast<std::size_t>(v) * W + std::min(u, u1));
     }
   }
   const float near_dz = (kTsdfBlockSide - 1) * (std::min(0.0f, ax.z()) + std::min(0.0f, ay.z()));
