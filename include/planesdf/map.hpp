@@ -12,6 +12,8 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "planesdf/config.hpp"
@@ -25,7 +27,22 @@ namespace planesdf {
 struct PlaneSdf {
   Plane plane;
   TsdfVolume volume;
+
+  PlaneSdf(const Plane& p, TsdfVolume v) : plane(p), volume(std::move(v)) {}
+  PlaneSdf(const PlaneSdf&) = default;
+  PlaneSdf& operator=(const PlaneSdf&) = default;
+  /// noexcept (Eigen's fixed-size types in Plane do not say so): a growing vector of planes
+  /// moves its volumes instead of copying them.
+  PlaneSdf(PlaneSdf&& o) noexcept : plane(o.plane), volume(std::move(o.volume)) {}
+  PlaneSdf& operator=(PlaneSdf&& o) noexcept {
+    plane = o.plane;
+    volume = std::move(o.volume);
+    return *this;
+  }
+  ~PlaneSdf() = default;
 };
+static_assert(std::is_nothrow_move_constructible<PlaneSdf>::value,
+              "vectors of PlaneSdf must move, not copy, their volumes");
 
 /// What one integrate() call did.
 struct IntegrateStats {
