@@ -1,13 +1,52 @@
-// `planesdf info INPUT`: what a cloud file or TUM folder holds; checks that it loads.
+// `planesdf info INPUT`: what a cloud file, TUM folder or session map holds; checks that it loads.
+#include <iomanip>
 #include <iostream>
 
 #include "commands.hpp"
 #include "planesdf/io/cloud.hpp"
 #include "planesdf/io/tum.hpp"
+#include "planesdf/map.hpp"
 
 namespace planesdf::cli {
 
+namespace {
+
+/// A session map: its frames, kept points, memory and, per plane, the plane and its volume.
+void printMap(const std::string& input) {
+  const Map map = Map::load(input);
+  std::size_t voxels = 0;
+  for (const PlaneSdf& p : map.planes()) voxels += p.volume.numVoxels();
+  std::cout << "session map " << input << "\n"
+            << "  frames:    " << map.frames() << "\n"
+            << "  planes:    " << map.planes().size() << "\n"
+            << "  voxels:    " << voxels << " allocated ("
+            << (map.planes().empty() ? 0.0 : map.planes().front().volume.voxelSize() * 1000.0)
+            << " mm)\n"
+            << "  points:    " << map.points().size() << " kept\n"
+            << "  memory:    " << std::fixed << std::setprecision(1)
+            << static_cast<double>(map.memoryBytes()) / 1e6 << " MB\n";
+  const Eigen::IOFormat fmt(3, Eigen::DontAlignCols, " ", " ", "", "", "(", ")");
+  for (const PlaneSdf& p : map.planes()) {
+    const Plane& q = p.plane;
+    const Eigen::Vector2d size =
+        q.extent.isEmpty() ? Eigen::Vector2d::Zero() : Eigen::Vector2d(q.extent.sizes());
+    std::cout << "  plane " << q.id << ": "
+              << (q.orientation == Plane::Orientation::Horizontal ? "horizontal" : "vertical")
+              << ", normal " << q.normal.transpose().format(fmt) << ", offset "
+              << std::setprecision(3) << q.offset << " m, extent " << std::setprecision(2)
+              << size.x() << " x " << size.y() << " m, " << p.volume.numBlocks() << " blocks, "
+              << std::setprecision(1) << static_cast<double>(p.volume.memoryBytes()) / 1e6
+              << " MB\n";
+  }
+}
+
+}  // namespace
+
 int runInfo(const std::string& input) {
+  if (input.size() > 5 && input.compare(input.size() - 5, 5, ".psdf") == 0) {
+    printMap(input);
+    return 0;
+  }
   if (planesdf::io::isTumFolder(input)) {
     const auto seq = planesdf::io::readTumSequence(input);
     const auto& k = seq.intrinsics;

@@ -108,4 +108,24 @@ TEST(Cli, BenchRejectsANegativeFrameCount) {
   EXPECT_EQ(countLines(r.out), 1) << r.out;
 }
 
+TEST(Cli, InfoOnASessionMapListsItsPlanes) {
+  TempDir tmp;
+  const std::string map = tmp.file("learn0.psdf");
+  const auto fused =
+      runCli("fuse '" + planesdf::test::mosdDir() + "/scenes/learn0.pcd' --out '" + map + "'");
+  ASSERT_EQ(fused.exit_code, 0) << fused.out;
+  const auto r = runCli("info '" + map + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  EXPECT_NE(r.out.find("session map"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("plane 0: horizontal"), std::string::npos) << r.out;  // the table
+  EXPECT_NE(r.out.find(" blocks, "), std::string::npos) << r.out;
+  // A truncated map is bad input: one line naming the file.
+  const std::string cut = tmp.file("cut.psdf");
+  planesdf::test::writeBytes(cut, "PSDF");
+  const auto bad = runCli("info '" + cut + "'");
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_EQ(countLines(bad.out), 1) << bad.out;
+  EXPECT_NE(bad.out.find(cut), std::string::npos) << bad.out;
+}
+
 }  // namespace
