@@ -182,11 +182,12 @@ inline Eigen::Vector3i floorVec(const Eigen::Vector3f& p) {
   return Eigen::Vector3i(floorToInt(p.x()), floorToInt(p.y()), floorToInt(p.z()));
 }
 
-/// Per-thread collection of the blocks crossed by truncation segments. Consecutive pixels mostly
-/// give segments between the same two blocks a and b; once every block of the box spanned by a
-/// and b is known (allocated or collected), no path between them can add anything, so such
-/// segments are skipped without walking them (exact, not an approximation). A box found to hold
-/// an unknown block is not checked again while the same (a, b) repeats.
+/// Per-thread collection of the blocks crossed by truncation segments. Pixels mostly give
+/// segments between a few recurring pairs of blocks a and b; once every block of the box spanned
+/// by a and b is known (allocated or collected), no path between them can add anything, so such
+/// segments are skipped without walking them (exact, not an approximation). Known pairs are
+/// remembered in a direct-mapped cache; a box found to hold an unknown block is not checked
+/// again while the same (a, b) repeats.
 class SegmentBlocks {
  public:
   explicit SegmentBlocks(const TsdfVolume& vol) : collector_(vol) {
@@ -195,25 +196,31 @@ class SegmentBlocks {
   /// The segment A-B in block units.
   void add(const Eigen::Vector3f& A, const Eigen::Vector3f& B) {
     const Eigen::Vector3i a = floorVec(A), b = floorVec(B);
-    for (const auto& d : done_)
-      if (d.first == a && d.second == b) return;
+    auto& slot = done_[slotOf(a, b)];
+    if (slot.first == a && slot.second == b) return;
     visitBlocksOnSegment(A, B, a, b, [&](const Eigen::Vector3i& blk) { collector_.add(blk); });
     if (a == failed_.first && b == failed_.second) return;
-    if (collector_.allKnown(a.cwiseMin(b), a.cwiseMax(b))) {
-      done_[next_] = {a, b};
-      next_ = (next_ + 1) & 3;
-    } else {
+    if (collector_.allKnown(a.cwiseMin(b), a.cwiseMax(b)))
+      slot = {a, b};
+    else
       failed_ = {a, b};
-    }
   }
   const std::vector<std::uint64_t>& newKeys() const { return collector_.keys(); }
 
  private:
+  static constexpr std::size_t kDoneSlots = 1024;
+  static std::size_t slotOf(const Eigen::Vector3i& a, const Eigen::Vector3i& b) {
+    const auto u = [](int v) { return static_cast<std::uint32_t>(v); };
+    std::uint32_t h = u(a.x()) * 73856093u ^ u(a.y()) * 19349663u ^ u(a.z()) * 83492791u;
+    h ^= (u(b.x() - a.x()) + 2u) * 3u + (u(b.y() - a.y()) + 2u) * 15u +
+         (u(b.z() - a.z()) + 2u) * 75u;
+    h ^= h >> 13;
+    return (h * 0x9E3779B1u >> 22) & (kDoneSlots - 1);
+  }
   NewBlockCollector collector_;
-  std::array<std::pair<Eigen::Vector3i, Eigen::Vector3i>, 4> done_;
+  std::array<std::pair<Eigen::Vector3i, Eigen::Vector3i>, kDoneSlots> done_;
   std::pair<Eigen::Vector3i, Eigen::Vector3i> failed_{Eigen::Vector3i::Zero(),
                                                       Eigen::Vector3i::Constant(-1)};
-  int next_ = 0;
 };
 
 // ---- depth frames ---------------------------------------------------------------------------
