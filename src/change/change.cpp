@@ -73,8 +73,17 @@ void parallelFor(int n, int threads, const std::function<void(int)>& f) {
 /// Planes with |n·n'| below this are not parallel (see computePlaneMaps).
 constexpr double kParallelPlaneCos = 0.7;
 /// A height-map surface within this distance (m) of another plane, inside its extent grown by
-/// kOtherPlaneMargin (m), lies on that plane.
+/// kOtherPlaneMargin (m), lies on that plane ...
 constexpr double kOtherPlaneDistance = 0.02;
+/// ... and, for a plane of room structure (its extent at least
+/// kStructureMinExtent long, m: a wall or a shelf side, not the face of a box), so does one up to
+/// kOtherPlaneBehind (m) behind it: the back half of a far wall's noisy surface (3 sigma of a
+/// Kinect's depth noise is 6 cm at 3.5 m) and the truncation band behind it, which the height walk
+/// reads as objects standing in the wall.
+constexpr double kOtherPlaneBehind = 0.10;
+/// In front of such a plane, its noisy surface reaches this far (m).
+constexpr double kStructureFront = 0.06;
+constexpr double kStructureMinExtent = 1.0;
 constexpr double kOtherPlaneMargin = 0.03;
 
 using ColumnKey = std::pair<int, int>;
@@ -417,7 +426,12 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
         const Eigen::Vector2d uv = hm.cellCenter(x, y);
         const Eigen::Vector3d p = plane.plane.toWorld(Eigen::Vector3d(uv.x(), uv.y(), h));
         for (const Plane* q : others) {
-          if (std::abs(q->signedDistance(p)) > kOtherPlaneDistance) continue;
+          const double sd = q->signedDistance(p);
+          const bool structure = q->orientation == Plane::Orientation::Vertical &&
+                                 q->extent.sizes().maxCoeff() >= kStructureMinExtent;
+          if (sd > (structure ? kStructureFront : kOtherPlaneDistance) ||
+              sd < -(structure ? kOtherPlaneBehind : kOtherPlaneDistance))
+            continue;
           const Eigen::Vector3d l = q->toLocal(p);
           const Eigen::AlignedBox2d ext(q->extent.min().array() - kOtherPlaneMargin,
                                         q->extent.max().array() + kOtherPlaneMargin);

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 #include "analytic_scene.hpp"
@@ -326,6 +327,90 @@ TEST(AssembleEvents, TheSameObjectInPlaceIsNoEventUnlessTheOtherSideHas3DEvidenc
   EXPECT_EQ(e[0].type, ChangeType::Replaced);
   EXPECT_FALSE(e[0].reference.empty());
   EXPECT_FALSE(e[0].current.empty());
+}
+
+// ---- other planes' surfaces in a plane's maps ------------------------------------------------
+
+/// A floor whose volume holds the height field `h(x, y)` (world = floor frame, 7 mm voxels).
+PlaneSdf floorWith(const std::function<double(double, double)>& h) {
+  Config cfg;
+  Plane floor;
+  floor.id = 0;
+  floor.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.5, -0.5), Eigen::Vector2d(0.5, 0.5));
+  PlaneSdf ps(floor, TsdfVolume(cfg));
+  const double vs = cfg.voxel_size, trunc = cfg.truncation();
+  const int n = static_cast<int>(0.5 / vs);
+  for (int j = -n; j < n; ++j)
+    for (int i = -n; i < n; ++i) {
+      const double top = h((i + 0.5) * vs, (j + 0.5) * vs);
+      for (int k = -4; k < static_cast<int>(cfg.fuse_band / vs); ++k) {
+        const double sdf = top - (k + 0.5) * vs;  // above the top: free (positive)
+        if (sdf > trunc || sdf < -trunc) {
+          if (sdf < 0.0) continue;  // deep inside: unobserved
+        }
+        const Eigen::Vector3i v(i, j, k);
+        TsdfBlock& b = ps.volume.allocateBlock(TsdfVolume::blockOfVoxel(v));
+        b.voxels[static_cast<std::size_t>(TsdfVolume::linearIndexInBlock(v))] = {
+            static_cast<float>(std::min(-sdf, trunc)), 5.0f};
+      }
+    }
+  return ps;
+}
+
+/// A vertical plane facing -y at y = y0, `length` m long along x and `height` m high.
+PlaneSdf wallAt(double y0, double length, double height) {
+  Plane wall;
+  wall.id = 1;
+  wall.orientation = Plane::Orientation::Vertical;
+  wall.normal = -Eigen::Vector3d::UnitY();
+  wall.offset = y0;
+  wall.frame_origin = Eigen::Vector3d(0.0, y0, 0.0);
+  wall.frame_axes.col(0) = Eigen::Vector3d::UnitX();
+  wall.frame_axes.col(1) = Eigen::Vector3d::UnitZ();
+  wall.frame_axes.col(2) = wall.normal;
+  wall.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.5 * length, 0.0),
+                                    Eigen::Vector2d(0.5 * length, height));
+  return PlaneSdf(wall, TsdfVolume(Config{}));
+}
+
+/// Object cells of `maps` whose centre y lies in [y0, y1).
+int objectCellsBetween(const PlaneMaps& maps, double y0, double y1) {
+  int n = 0;
+  const HeightMap& hm = maps.heights;
+  for (int y = 0; y < hm.height; ++y)
+    for (int x = 0; x < hm.width; ++x) {
+      const double cy = hm.cellCenter(x, y).y();
+      if (cy >= y0 && cy < y1 && hm.at(x, y) > Config{}.h_obj) ++n;
+    }
+  return n;
+}
+
+TEST(PlaneMaps, AWallsNoisySurfaceAndTheBandBehindItAreStructureNotObjects) {
+  // A wall at y = 0.31 m. In the floor's band, its surface spreads 5 cm in front of the plane
+  // (far-range noise) and 7 cm behind it (noise and the truncation band); a 6 cm box stands
+  // 20 cm in front of it.
+  const auto field = [](double, double y) {
+    if (y >= 0.26 && y < 0.38) return 0.29;  // the wall's surface, noisy
+    if (y >= 0.05 && y < 0.11) return 0.06;  // the box
+    return 0.0;
+  };
+  const PlaneSdf floor = floorWith(field);
+  const Config cfg;
+  // Without other planes, all of it is objects.
+  const PlaneMaps alone = computePlaneMaps(floor, {floor}, cfg);
+  EXPECT_GT(objectCellsBetween(alone, 0.26, 0.38), 1000);
+  // A wall (room structure): its spread is unknown, the box stays.
+  const PlaneMaps with_wall = computePlaneMaps(floor, {floor, wallAt(0.31, 1.2, 2.0)}, cfg);
+  EXPECT_EQ(objectCellsBetween(with_wall, 0.26, 0.38), 0);
+  EXPECT_EQ(objectCellsBetween(with_wall, 0.05, 0.11), objectCellsBetween(alone, 0.05, 0.11));
+  EXPECT_GT(objectCellsBetween(alone, 0.05, 0.11), 500);
+  // A box face (a vertical plane 30 x 30 cm) only takes the cells within 2 cm of it.
+  const PlaneMaps with_face = computePlaneMaps(floor, {floor, wallAt(0.31, 0.3, 0.3)}, cfg);
+  const int near_face =
+      objectCellsBetween(alone, 0.29, 0.33) - objectCellsBetween(with_face, 0.29, 0.33);
+  EXPECT_GT(near_face, 0);
+  EXPECT_EQ(objectCellsBetween(with_face, 0.34, 0.38), objectCellsBetween(alone, 0.34, 0.38));
+  EXPECT_EQ(objectCellsBetween(with_face, 0.26, 0.28), objectCellsBetween(alone, 0.26, 0.28));
 }
 
 TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
