@@ -92,6 +92,11 @@ struct Config {
   // --- height map / object map ---------------------------------------------------------------
   float w_min = 1.0f;   ///< minimum TSDF weight for a surface / observed cell
   double h_obj = 0.01;  ///< m; cells above this height belong to objects
+  /// m; a plane's height-map cells farther than this outside its extent (the box of its inliers)
+  /// are unknown: a PlaneSDF fuses the whole unbounded band of its plane, but what stands beyond
+  /// the plane (a wall or a shelf in a table's band, across the room) is not on it. A large value
+  /// (1000) disables the limit.
+  double support_margin = 0.10;
 
   // --- registration ------------------------------------------------------------------------------
   double delta_n = 0.95;       ///< minimum cosine between normals

@@ -418,6 +418,15 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
         !q.plane.extent.isEmpty())
       others.push_back(&q.plane);
   HeightMap& hm = m.heights;
+  // Support: the band is unbounded, but only what stands on the plane is its object; beyond its
+  // extent (a table's band reaching the walls, a shelf across the room) it is unknown.
+  if (!plane.plane.extent.isEmpty()) {
+    const Eigen::AlignedBox2d support(plane.plane.extent.min().array() - cfg.support_margin,
+                                      plane.plane.extent.max().array() + cfg.support_margin);
+    for (int y = 0; y < hm.height; ++y)
+      for (int x = 0; x < hm.width; ++x)
+        if (!support.contains(hm.cellCenter(x, y))) hm.at(x, y) = kUnobserved;
+  }
   if (!others.empty())
     for (int y = 0; y < hm.height; ++y)
       for (int x = 0; x < hm.width; ++x) {

@@ -51,4 +51,23 @@ TEST(Demo, TabletopFindsEveryChangeAndWritesItsReport) {
   EXPECT_EQ(m["wrong"].get<int>(), j["wrong"].get<int>());
 }
 
+TEST(Demo, RoomKeepsWallsFloorAndFarTablePlaneOutOfTheChanges) {
+  // The simulated room (seed 1: two tables merged into one plane, a shelf, four walls, an object
+  // hung on a wall). Before the wall-structure rule and the support limit of computePlaneMaps,
+  // the walls' noisy surfaces and the merged table plane's band across the room made 73 events
+  // (W 121, F1 0.03); now W 11, M 2, F1 0.10. What is left: the shelf and the table legs seen
+  // differently by the two sessions, far-wall speckle; the swap on the shelf's top board (no plane
+  // under it: M 2, its removed and its added object) is missed.
+  TempDir tmp;
+  const auto r = runCli("demo --scene room --out '" + tmp.path() + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  std::ifstream in(tmp.file("report.json"));
+  ASSERT_TRUE(in.good());
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_LE(j["wrong"].get<int>(), 15);
+  EXPECT_LE(j["missed"].get<int>(), 2);
+  EXPECT_GE(j["recall"].get<double>(), 0.8);
+  EXPECT_GE(j["f1"].get<double>(), 0.08);
+}
+
 }  // namespace

@@ -413,6 +413,29 @@ TEST(PlaneMaps, AWallsNoisySurfaceAndTheBandBehindItAreStructureNotObjects) {
   EXPECT_EQ(objectCellsBetween(with_face, 0.26, 0.28), objectCellsBetween(alone, 0.26, 0.28));
 }
 
+TEST(PlaneMaps, WhatStandsBeyondThePlaneExtentIsUnknown) {
+  // The plane's inliers end at y = 0.2. A box stands on it, one within the support margin
+  // (0.1 m) beyond its edge, and one 15 cm beyond (a shelf or a wall in its unbounded band).
+  const auto field = [](double, double y) {
+    if (y >= 0.00 && y < 0.06) return 0.06;
+    if (y >= 0.22 && y < 0.28) return 0.08;
+    if (y >= 0.35 && y < 0.41) return 0.10;
+    return 0.0;
+  };
+  PlaneSdf floor = floorWith(field);
+  floor.plane.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.5, -0.5), Eigen::Vector2d(0.5, 0.2));
+  Config cfg;
+  const PlaneMaps maps = computePlaneMaps(floor, {floor}, cfg);
+  EXPECT_GT(objectCellsBetween(maps, 0.00, 0.06), 500);
+  EXPECT_GT(objectCellsBetween(maps, 0.22, 0.28), 500);
+  EXPECT_EQ(objectCellsBetween(maps, 0.30, 0.50), 0);
+  EXPECT_EQ(maps.objects.numObjects(), 2);
+  cfg.support_margin = 1000.0;  // no limit: the far box is an object again
+  const PlaneMaps all = computePlaneMaps(floor, {floor}, cfg);
+  EXPECT_EQ(objectCellsBetween(all, 0.35, 0.41), objectCellsBetween(maps, 0.00, 0.06));
+  EXPECT_EQ(all.objects.numObjects(), 3);
+}
+
 TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
   ChangeDetector det(beforeMap(), Config{});
   std::vector<ChangeEvent> heard;
