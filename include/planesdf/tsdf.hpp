@@ -112,6 +112,13 @@ class BlockHashMap {
   }
   /// Inserts (key, value) unless present. Returns the stored value and whether it was inserted.
   std::pair<std::uint32_t, bool> insert(std::uint64_t key, std::uint32_t value);
+  /// Set use: inserts `key` (value 0) unless present; true when it was inserted. Unlike insert,
+  /// a hit reads no value.
+  bool insertKey(std::uint64_t key);
+  /// Asks the cache for the first slot `key` probes (a batch of lookups can run ahead).
+  void prefetch(std::uint64_t key) const {
+    if (!keys_.empty()) __builtin_prefetch(&keys_[detail::mixBlockKey(key) & mask_]);
+  }
   std::size_t size() const { return size_; }
   /// Removes all entries, keeping the table's capacity.
   void clear();

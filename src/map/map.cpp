@@ -166,28 +166,48 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   // object threshold and inside its band (plane surfaces themselves never change).
   const double h_lo = 0.5 * cfg_.h_obj;
   const bool dedup = deduplicate && cfg_.point_cell > 0.0;
-  // The band test in parallel, then the (order-dependent) de-duplication in input order.
+  // The band test and the cell keys in parallel, each thread listing (index, key) of its
+  // contiguous share of the input in order (static schedule: concatenated in thread order, the
+  // lists are in input order); then the order-dependent de-duplication. Lists are reused.
   const auto n = static_cast<std::ptrdiff_t>(pts.size());
-  std::vector<std::uint8_t> keep(pts.size(), 0);
   const int threads = threadCount(cfg_);
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static)
-  for (std::ptrdiff_t i = 0; i < n; ++i) {
-    const Eigen::Vector3f& p = pts[static_cast<std::size_t>(i)];
-    if (!PointCloud::isValid(p)) continue;
-    for (const auto& ps : planes_) {
-      const double h = ps.plane.signedDistance(p.cast<double>());
-      if (h >= h_lo && h <= cfg_.fuse_band) {
-        keep[static_cast<std::size_t>(i)] = 1;
-        break;
+  thread_local std::vector<std::vector<std::pair<std::uint32_t, std::uint64_t>>> scratch;
+  auto& lists = scratch;  // the caller's (thread_local names the worker's own in the region)
+  lists.resize(static_cast<std::size_t>(threads));
+  for (auto& l : lists) l.clear();
+#pragma omp parallel num_threads(threads) if (threads > 1)
+  {
+    auto& mine = lists[static_cast<std::size_t>(omp_get_thread_num())];
+#pragma omp for schedule(static)
+    for (std::ptrdiff_t i = 0; i < n; ++i) {
+      const Eigen::Vector3f& p = pts[static_cast<std::size_t>(i)];
+      if (!PointCloud::isValid(p)) continue;
+      for (const auto& ps : planes_) {
+        const double h = ps.plane.signedDistance(p.cast<double>());
+        if (h >= h_lo && h <= cfg_.fuse_band) {
+          mine.emplace_back(static_cast<std::uint32_t>(i),
+                            dedup ? detail::cellKeyOf(p, cfg_.point_cell) : 0);
+          break;
+        }
       }
     }
   }
-  for (std::size_t i = 0; i < pts.size(); ++i) {
-    if (!keep[i]) continue;
-    const Eigen::Vector3f& p = pts[i];
-    if (dedup && !point_cells_.insert(detail::cellKeyOf(p, cfg_.point_cell), 0).second) continue;
-    points_.push_back(p);
-  }
+  // The cell set is large and its lookups miss the cache: request the slots some points ahead.
+  // A point in the same cell as the point before it is a duplicate whatever the set holds.
+  constexpr std::size_t kAhead = 16;
+  std::uint64_t last = detail::kEmptyBlockKey;
+  for (const auto& list : lists)
+    for (std::size_t j = 0; j < list.size(); ++j) {
+      const auto [i, key] = list[j];
+      if (!dedup) {
+        points_.push_back(pts[i]);
+        continue;
+      }
+      if (j + kAhead < list.size()) point_cells_.prefetch(list[j + kAhead].second);
+      if (key == last) continue;
+      last = key;
+      if (point_cells_.insertKey(key)) points_.push_back(pts[i]);
+    }
 }
 
 IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,

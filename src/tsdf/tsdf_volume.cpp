@@ -39,6 +39,20 @@ std::pair<std::uint32_t, bool> BlockHashMap::insert(std::uint64_t key, std::uint
   }
 }
 
+bool BlockHashMap::insertKey(std::uint64_t key) {
+  if ((size_ + 1) * 2 > keys_.size()) rehash(std::max<std::size_t>(16, keys_.size() * 2));
+  for (std::size_t i = detail::mixBlockKey(key) & mask_;; i = (i + 1) & mask_) {
+    const std::uint64_t k = keys_[i];
+    if (k == key) return false;
+    if (k == kEmptyKey) {
+      keys_[i] = key;
+      values_[i] = 0;
+      ++size_;
+      return true;
+    }
+  }
+}
+
 void BlockHashMap::clear() {
   std::fill(keys_.begin(), keys_.end(), kEmptyKey);
   size_ = 0;
