@@ -105,15 +105,18 @@ struct InPlaneRefinement {
 /// cell under the initial T is observed; search over a yaw (about the centre of the samples) and
 /// a shift (du, dv) within the window of `search`, coarse to fine: 2-cell and 1-degree steps over
 /// the whole window on at most 6000 samples (a sample agrees there when a target cell within one
-/// cell agrees), then 1-cell and yaw_step steps around the coarse
-/// best on all samples. The cost of a candidate is the number
-/// of samples whose nearest target cell differs by more than cfg.delta_h — a sample that
-/// mismatched under the initial T and is moved off the observed target still counts, so
-/// differences cannot hide in unobserved areas — ties
+/// cell agrees), then 1-cell and yaw_step steps around the coarse best and around the initial T
+/// on all samples. A sample mismatches when its nearest target cell differs by more than
+/// cfg.delta_h; one that mismatched under the initial T and is moved off the observed target
+/// still does, so differences cannot hide in unobserved areas. The cost of a candidate counts the
+/// mismatches with each object's share capped at half its samples (a sample belongs to the
+/// source object it lies on, else to the target object it falls on under the initial T, else to
+/// the uncapped background): a moved object mismatches wholly at the right T, and a candidate
+/// that drags the map onto its new place must not win against the static objects. Ties are
 /// broken by the mean capped absolute difference, then by the smaller motion. Model selection:
-/// T becomes Δ * T only when the best candidate removes at least 20 % of the initial mismatches
-/// and at least 20 cells (changed objects mismatch wherever they are put; drift makes a shift pay
-/// off everywhere along the static edges). Empty or non-overlapping maps: nothing is done.
+/// T becomes Δ * T only when the best candidate lies inside the window (a best on its border is
+/// a moved object pulling, not drift) and removes at least 20 % (or 3 sigma) of the initial
+/// mismatches and at least 20 cells. Empty or non-overlapping maps: nothing is done.
 /// Does not read cfg.refine_inplane (the caller decides whether to refine).
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,

@@ -138,29 +138,59 @@ struct Sample {
   Eigen::Vector2d uv;       ///< source cell centre mapped by the initial T, target-local
   float h;                  ///< source height
   bool mismatched = false;  ///< differs from the target under the initial T
+  int group = 0;            ///< 0 background, else the object it belongs to (see refineInPlane)
 };
+
+/// Mismatches a group (one object of either session) may add to a candidate's cost: each object
+/// votes with a bounded weight, so that no candidate wins by moving the map onto one moved
+/// object's new place against the agreement of the static ones.
+struct Groups {
+  std::vector<int> cap;  ///< per group; background: its sample count (no cap)
+  mutable std::vector<int> count;
+};
+
+/// The groups of `samples` (ids below n_groups): an object's mismatches count up to half its
+/// samples (a moved object mismatches wholly at the right T, and a candidate that drags the map
+/// onto its new place gains at most that half); the background (group 0) is not capped.
+Groups groupsOf(const std::vector<Sample>& samples, std::size_t n_groups) {
+  Groups g;
+  g.cap.assign(n_groups, 0);
+  for (const Sample& smp : samples) ++g.cap[static_cast<std::size_t>(smp.group)];
+  for (std::size_t i = 1; i < n_groups; ++i) g.cap[i] = (g.cap[i] + 1) / 2;
+  g.count.assign(n_groups, 0);
+  return g;
+}
 
 struct Score {
   int compared = 0;
-  int mismatches = 0;
+  int mismatches = 0;  ///< samples that differ
+  int cost = 0;        ///< mismatches with each group's share capped (Groups)
   double mean_abs = 0.0;
 };
 
 /// Scores the samples moved by a yaw `yaw` about `pivot` then a shift `shift` (target frame).
 /// With `slack` > 0 a sample agrees when any target cell within `slack` cells (Chebyshev) agrees
 /// (the coarse search: its steps are 2 cells, so the right answer is at most 1 cell away).
-/// Stops early, returning a partial score with more than `max_mismatches` mismatches, once the
-/// count passes `max_mismatches` (such a candidate cannot beat one with that many).
-Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
+/// Stops early, returning a partial score, once the capped cost passes `max_cost` (it only
+/// grows, so such a candidate cannot beat one with that cost).
+Score scoreCandidate(const std::vector<Sample>& samples, const Groups& groups, const HeightMap& tgt,
                      const Eigen::Vector2d& pivot, double yaw, const Eigen::Vector2d& shift,
                      double delta_h, int slack = 0,
-                     int max_mismatches = std::numeric_limits<int>::max()) {
+                     int max_cost = std::numeric_limits<int>::max()) {
   const double c = std::cos(yaw);
   const double s = std::sin(yaw);
   const double inv = 1.0 / tgt.cell_size;
   const double cap = 4.0 * delta_h;
   Score sc;
   double sum = 0.0;
+  std::fill(groups.count.begin(), groups.count.end(), 0);
+  // A mismatch of sample `smp`: false when the cost passed max_cost (stop).
+  const auto mismatch = [&](const Sample& smp) {
+    ++sc.mismatches;
+    const auto g = static_cast<std::size_t>(smp.group);
+    if (++groups.count[g] <= groups.cap[g]) ++sc.cost;
+    return sc.cost <= max_cost;
+  };
   for (const Sample& smp : samples) {
     const Eigen::Vector2d d = smp.uv - pivot;
     const double u = pivot.x() + c * d.x() - s * d.y() + shift.x();
@@ -177,7 +207,7 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
       // views); agreeing samples lost at the borders of the observed area do not count.
       if (smp.mismatched) {
         ++sc.compared;
-        if (++sc.mismatches > max_mismatches) return sc;
+        if (!mismatch(smp)) return sc;
         sum += cap;
       }
       continue;
@@ -191,16 +221,16 @@ Score scoreCandidate(const std::vector<Sample>& samples, const HeightMap& tgt,
         diff = std::min(diff, std::abs(static_cast<double>(hn) - static_cast<double>(smp.h)));
       }
     ++sc.compared;
-    if (diff > delta_h && ++sc.mismatches > max_mismatches) return sc;
+    if (diff > delta_h && !mismatch(smp)) return sc;
     sum += std::min(diff, cap);
   }
   sc.mean_abs = sc.compared > 0 ? sum / sc.compared : 0.0;
   return sc;
 }
 
-/// True when `a` is a strictly better cost than `b` (mismatches, then mean |diff|).
+/// True when `a` is a strictly better cost than `b` (capped mismatches, then mean |diff|).
 bool better(const Score& a, const Score& b) {
-  if (a.mismatches != b.mismatches) return a.mismatches < b.mismatches;
+  if (a.cost != b.cost) return a.cost < b.cost;
   return a.mean_abs < b.mean_abs - 1e-9;
 }
 
@@ -248,6 +278,12 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
       }
     return true;
   };
+  // Groups: a sample on an object of the source map belongs to it; else one whose target cell
+  // (initial T) is on an object of the target map belongs to that one; else the background.
+  const ObjectMap src_objects = computeObjectMap(src, cfg);
+  const ObjectMap tgt_objects = computeObjectMap(tgt, cfg);
+  const int n_src_objects = src_objects.numObjects();
+  const auto n_groups = static_cast<std::size_t>(1 + n_src_objects + tgt_objects.numObjects());
   std::vector<Sample> samples;
   samples.reserve(std::min(observed, cap) + 1);
   std::size_t k = 0;
@@ -263,16 +299,23 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
       if (st < 0 || (st == 1 && isolated(x, y))) continue;
       const Eigen::Vector2d c = src.cellCenter(x, y);
       const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
-      samples.push_back({uv, h, st == 1});
+      int group = src_objects.at(x, y);
+      if (group == 0) {
+        const Eigen::Vector2i tc = tgt.cellOf(uv);
+        const int t = tgt_objects.at(tc.x(), tc.y());  // in bounds: st >= 0
+        if (t > 0) group = n_src_objects + t;
+      }
+      samples.push_back({uv, h, st == 1, group});
       lo = lo.cwiseMin(uv);
       hi = hi.cwiseMax(uv);
     }
   }
   const Eigen::Vector2d pivot = 0.5 * (lo + hi);
   out.pivot = pivot;
+  const Groups groups = groupsOf(samples, n_groups);
 
   const Score initial =
-      scoreCandidate(samples, tgt, pivot, 0.0, Eigen::Vector2d::Zero(), cfg.delta_h);
+      scoreCandidate(samples, groups, tgt, pivot, 0.0, Eigen::Vector2d::Zero(), cfg.delta_h);
   out.compared_before = out.compared_after = initial.compared;
   out.mismatches_before = out.mismatches_after = initial.mismatches;
   out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
@@ -286,8 +329,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
     double motion() const { return std::hypot(du, dv) + 0.01 * std::abs(yaw_deg); }
   };
   // Scores every candidate of a grid centred on `c` (ties keep the smaller motion).
-  const auto gridSearch = [&](const std::vector<Sample>& smp, const Cand& c, int ns, double st,
-                              int ny, double yst, int slack, Cand* best_c, Score* best_s) {
+  const auto gridSearch = [&](const std::vector<Sample>& smp, const Groups& grp, const Cand& c,
+                              int ns, double st, int ny, double yst, int slack, Cand* best_c,
+                              Score* best_s) {
     std::vector<Cand> cands;
     for (int iy = -ny; iy <= ny; ++iy)
       for (int iv = -ns; iv <= ns; ++iv)
@@ -303,9 +347,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                      [](const Cand& x, const Cand& y) { return x.motion() < y.motion(); });
     bool any = false;
     for (const Cand& k : cands) {
-      const Score sc = scoreCandidate(smp, tgt, pivot, k.yaw_deg * kPi / 180.0,
-                                      Eigen::Vector2d(k.du, k.dv), cfg.delta_h, slack,
-                                      any ? best_s->mismatches : std::numeric_limits<int>::max());
+      const Score sc =
+          scoreCandidate(smp, grp, tgt, pivot, k.yaw_deg * kPi / 180.0, Eigen::Vector2d(k.du, k.dv),
+                         cfg.delta_h, slack, any ? best_s->cost : std::numeric_limits<int>::max());
       if (!any || better(sc, *best_s)) {
         *best_s = sc;
         *best_c = k;
@@ -323,15 +367,37 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   const double cstep = 2.0 * step, cystep = std::max(1.0, ystep);
   Cand coarse;
   Score coarse_score;
-  gridSearch(coarse_samples, Cand{}, static_cast<int>(std::floor(search.max_shift / cstep + 1e-9)),
-             cstep, static_cast<int>(std::floor(search.max_yaw_deg / cystep + 1e-9)), cystep, 1,
-             &coarse, &coarse_score);
+  gridSearch(coarse_samples, groupsOf(coarse_samples, n_groups), Cand{},
+             static_cast<int>(std::floor(search.max_shift / cstep + 1e-9)), cstep,
+             static_cast<int>(std::floor(search.max_yaw_deg / cystep + 1e-9)), cystep, 1, &coarse,
+             &coarse_score);
+  // Fine search around the coarse best and, when that lies elsewhere, around the initial T too:
+  // the coarse costs (one-cell slack) are shallow where a table holds few static objects, and
+  // drift is small; the capped fine cost decides between the two.
+  const int fine_yaw_steps = static_cast<int>(std::ceil(cystep / ystep));
   Cand fine;
   Score best;
-  gridSearch(samples, coarse, 2, step, static_cast<int>(std::ceil(cystep / ystep)), ystep, 0, &fine,
-             &best);
+  gridSearch(samples, groups, coarse, 2, step, fine_yaw_steps, ystep, 0, &fine, &best);
+  if (coarse.du != 0.0 || coarse.dv != 0.0 || coarse.yaw_deg != 0.0) {
+    Cand near;
+    Score near_score;
+    gridSearch(samples, groups, Cand{}, 2, step, fine_yaw_steps, ystep, 0, &near, &near_score);
+    if (better(near_score, best) || (!better(best, near_score) && near.motion() < fine.motion())) {
+      fine = near;
+      best = near_score;
+    }
+  }
   const Cand* best_cand = better(best, initial) ? &fine : nullptr;
   if (best_cand == nullptr) return out;
+  // A best candidate on the border of the window (one more fine step would leave it) is no
+  // optimum of the drift: the cost may still fall outward, which is what dragging the map onto
+  // a moved object's new place does. Not evidence of drift.
+  const auto onBorder = [](double x, double st, double limit) {
+    return std::abs(x) + st > limit + 1e-9;
+  };
+  if (onBorder(fine.du, step, search.max_shift) || onBorder(fine.dv, step, search.max_shift) ||
+      onBorder(fine.yaw_deg, ystep, search.max_yaw_deg))
+    return out;
   // Model selection: keep the initial T unless the evidence is clear — the best candidate must
   // remove at least kMinGainFraction of the initial mismatches and kMinGainCells cells (changed
   // objects mismatch wherever they are put; only drift makes a shift pay off substantially).

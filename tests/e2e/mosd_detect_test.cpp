@@ -51,7 +51,7 @@ TEST(MosdDetect, AllPairsMeetTheAcceptanceFigures) {
   const std::string root = test::mosdDir() + "/";
   TempDir tmp;
   double f1_sum = 0.0;
-  int max_wrong = 0;
+  int max_wrong = 0, total_missed = 0, total_wrong = 0;
   for (std::size_t i = 0; i < pairs.size(); ++i) {
     const Pair& p = pairs[i];
     const std::string out = tmp.file("pair" + std::to_string(i));
@@ -66,11 +66,17 @@ TEST(MosdDetect, AllPairsMeetTheAcceptanceFigures) {
                 e.pooled.missed, e.pooled.wrong);
     f1_sum += e.pooled.f1;
     max_wrong = std::max(max_wrong, e.pooled.wrong);
+    total_missed += e.pooled.missed;
+    total_wrong += e.pooled.wrong;
     EXPECT_LE(e.pooled.wrong, 1) << p.reference << " -> " << p.current;
   }
   const double mean_f1 = f1_sum / static_cast<double>(pairs.size());
-  std::printf("mean pooled F1 %.3f, max W %d\n", mean_f1, max_wrong);
-  EXPECT_GE(mean_f1, 0.85);
+  std::printf("mean pooled F1 %.3f, max W %d, total M %d, total W %d\n", mean_f1, max_wrong,
+              total_missed, total_wrong);
+  // Today: 0.873, total M 8, total W 0 (before the capped in-plane refinement cost: 0.859, 13, 1).
+  EXPECT_GE(mean_f1, 0.86);
+  EXPECT_LE(total_missed, 10);
+  EXPECT_LE(total_wrong, 2);
 }
 
 TEST(MosdDetect, ASceneAgainstItselfReportsNothing) {

@@ -273,6 +273,27 @@ TEST(HeightCompare, ShiftAndYawTogetherButRealRemovalStays) {
   EXPECT_EQ(hc.raw.count(), 100u);  // exactly the removed object, no false ring
 }
 
+TEST(HeightCompare, AnObjectMovedBeyondTheSearchWindowDoesNotDragTheMap) {
+  // One box moved 17 cells (11.9 cm) along u, beyond the 8 cm window: shifting the map by the
+  // window's largest step (11 cells) would halve the mismatches, but the cost still falls at the
+  // border; that is a moved object, not drift.
+  const Config cfg;
+  const HeightMap src = render({{10, 25, 10, 10, 0.08f}});
+  const HeightMap tgt = render({{27, 25, 10, 10, 0.08f}});
+  Pose T = Pose::Identity();
+  const InPlaneRefinement r = refineInPlane(src, tgt, T, cfg);
+  EXPECT_FALSE(r.applied);
+  EXPECT_EQ(r.mismatches_before, 200);
+  EXPECT_TRUE(T.isApprox(Pose::Identity()));
+  // The same move within the window (5 cells) with a static box beside it: the refinement does
+  // not trade the static box for the moved one either (equal areas: no gain).
+  const HeightMap src2 = render({{10, 25, 10, 10, 0.08f}, {40, 40, 10, 10, 0.08f}});
+  const HeightMap tgt2 = render({{15, 25, 10, 10, 0.08f}, {40, 40, 10, 10, 0.08f}});
+  Pose T2 = Pose::Identity();
+  EXPECT_FALSE(refineInPlane(src2, tgt2, T2, cfg).applied);
+  EXPECT_TRUE(T2.isApprox(Pose::Identity()));
+}
+
 TEST(HeightCompare, RefinementKeepsAlignedMapsAndHandlesEmpty) {
   const Config cfg;
   const HeightMap hm = render({kObject});
