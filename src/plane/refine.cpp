@@ -1,13 +1,13 @@
 // Robust point-to-plane refinement with Ceres. The only translation unit that includes Ceres.
 
-#include <ceres/loss_function.h>
+#include <ceres/cost_function.h>
 #include <ceres/problem.h>
-#include <ceres/sized_cost_function.h>
 #include <ceres/solver.h>
 #include <ceres/sphere_manifold.h>
 
 #include <cmath>
-#include <deque>
+#include <utility>
+#include <vector>
 
 #include "plane_internal.hpp"
 #include "planesdf/plane.hpp"
@@ -15,28 +15,49 @@
 namespace planesdf {
 namespace {
 
-// Residual n·p + d for one (centred) point; analytic Jacobians (p for n, 1 for d).
-class PointToPlaneCost final : public ceres::SizedCostFunction<1, 3, 1> {
+/// Robust point-to-plane residuals of all (centred) points in one residual block. Ceres applies
+/// a LossFunction per residual block, so the Cauchy loss is folded into the residuals: with
+/// r = n·p + d and rho(s) = c^2 log(1 + s / c^2), the residual is f = sign(r) sqrt(rho(r^2)),
+/// whose squares sum to the robust cost sum rho(r^2) (the same objective as one block per point
+/// with a CauchyLoss). One block instead of thousands removes Ceres' per-block overhead, which
+/// made a 10 000-point refinement cost 15-20 ms. Analytic Jacobians: df/dr = rho'(r^2) r / f
+/// (1 at r = 0), times p for n and 1 for d.
+class RobustPlaneResiduals final : public ceres::CostFunction {
  public:
-  explicit PointToPlaneCost(const Eigen::Vector3d& p) : p_(p) {}
+  RobustPlaneResiduals(std::vector<Eigen::Vector3d> points, double scale)
+      : points_(std::move(points)), c2_(scale * scale) {
+    set_num_residuals(static_cast<int>(points_.size()));
+    mutable_parameter_block_sizes()->push_back(3);
+    mutable_parameter_block_sizes()->push_back(1);
+  }
 
   bool Evaluate(double const* const* parameters, double* residuals,
                 double** jacobians) const override {
     const double* n = parameters[0];
-    residuals[0] = n[0] * p_.x() + n[1] * p_.y() + n[2] * p_.z() + parameters[1][0];
-    if (jacobians != nullptr) {
-      if (jacobians[0] != nullptr) {
-        jacobians[0][0] = p_.x();
-        jacobians[0][1] = p_.y();
-        jacobians[0][2] = p_.z();
+    const double d = parameters[1][0];
+    double* jn = jacobians != nullptr ? jacobians[0] : nullptr;
+    double* jd = jacobians != nullptr ? jacobians[1] : nullptr;
+    for (std::size_t i = 0; i < points_.size(); ++i) {
+      const Eigen::Vector3d& p = points_[i];
+      const double r = n[0] * p.x() + n[1] * p.y() + n[2] * p.z() + d;
+      const double s = r * r / c2_;
+      const double f = std::copysign(std::sqrt(c2_ * std::log1p(s)), r);
+      residuals[i] = f;
+      if (jn == nullptr && jd == nullptr) continue;
+      const double df = f != 0.0 ? r / ((1.0 + s) * f) : 1.0;
+      if (jn != nullptr) {
+        jn[3 * i] = df * p.x();
+        jn[3 * i + 1] = df * p.y();
+        jn[3 * i + 2] = df * p.z();
       }
-      if (jacobians[1] != nullptr) jacobians[1][0] = 1.0;
+      if (jd != nullptr) jd[i] = df;
     }
     return true;
   }
 
  private:
-  Eigen::Vector3d p_;
+  std::vector<Eigen::Vector3d> points_;
+  double c2_;
 };
 
 ceres::Solver::Options solverOptions() {
@@ -66,19 +87,15 @@ bool refinePlane(const std::vector<Eigen::Vector3f>& inliers, Plane& plane, cons
   Eigen::Vector3d n = n0;
   double d = plane.offset + n.dot(centre);
 
+  std::vector<Eigen::Vector3d> centred;
+  centred.reserve(pick.size());
+  for (std::uint32_t i : pick) centred.push_back(inliers[i].cast<double>() - centre);
   ceres::Problem::Options po;
-  po.cost_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   po.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
-  po.disable_all_safety_checks = true;  // thousands of identical, well-formed blocks
   ceres::Problem problem(po);
-  ceres::CauchyLoss loss(cfg.refine_loss_scale);
   ceres::SphereManifold<3> sphere;
-  std::deque<PointToPlaneCost> costs;
-  for (std::uint32_t i : pick) {
-    costs.emplace_back(inliers[i].cast<double>() - centre);
-    problem.AddResidualBlock(&costs.back(), &loss, n.data(), &d);
-  }
+  problem.AddResidualBlock(new RobustPlaneResiduals(std::move(centred), cfg.refine_loss_scale),
+                           nullptr, n.data(), &d);
   problem.SetManifold(n.data(), &sphere);
 
   ceres::Solver::Summary summary;
