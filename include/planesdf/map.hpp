@@ -110,7 +110,8 @@ class Map {
   IntegrateStats integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
                                 bool whole_cloud);
   void keepPoints(const std::vector<Eigen::Vector3f>& points_world, bool deduplicate);
-  IntegrateStats fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
+  /// Fuses an analysed depth frame into every plane volume.
+  IntegrateStats fuseDepth(const DepthFrameAnalysis& analysis, const Pose& camera_to_world,
                            const Config& fuse_cfg);
 
   Config cfg_;

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <exception>
 
 #include "map_internal.hpp"
 #include "planesdf/config_io.hpp"
@@ -210,13 +211,9 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
     }
 }
 
-IntegrateStats Map::fuseDepth(const DepthFrame& frame, const Pose& camera_to_world,
+IntegrateStats Map::fuseDepth(const DepthFrameAnalysis& analysis, const Pose& camera_to_world,
                               const Config& fuse_cfg) {
   IntegrateStats stats;
-  if (planes_.empty()) return stats;
-  // The per-pixel pass is the same for every plane: once per frame (scratch reused per thread).
-  thread_local DepthFrameAnalysis analysis;
-  analysis.analyse(frame, fuse_cfg.truncation(), fuse_cfg);
   for (auto& ps : planes_) {
     const Pose T_local_camera = ps.plane.frame().inverse() * camera_to_world;
     const IntegrationResult r = integrateDepth(ps.volume, analysis, T_local_camera, fuse_cfg);
@@ -229,12 +226,53 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   const auto t0 = Clock::now();
   checkFrame(frame);
   const std::vector<Eigen::Vector3f> pts = backProject(frame, camera_to_world);
-  tracker_.integrate(
-      gridSubsample(pts, frame.intrinsics.width, frame.intrinsics.height, cfg_.track_pixel_stride),
-      camera_to_world.translation());
+  const auto track = [&] {
+    if (cfg_.track_pixel_stride <= 1) {
+      tracker_.integrate(pts, camera_to_world.translation());  // every pixel: no copy
+    } else {
+      tracker_.integrate(gridSubsample(pts, frame.intrinsics.width, frame.intrinsics.height,
+                                       cfg_.track_pixel_stride),
+                         camera_to_world.translation());
+    }
+  };
+  // The per-pixel pass of fusion (scratch reused per thread) does not depend on the planes, and
+  // plane tracking is serial: with two threads or more they run side by side, the analysis on
+  // one thread (same results: both only read the frame).
+  thread_local DepthFrameAnalysis scratch;
+  DepthFrameAnalysis& analysis = scratch;  // the caller's (see keepPoints)
+  if (threadCount(cfg_) > 1) {
+    Config one_thread = cfg_;
+    one_thread.threads = 1;
+    std::exception_ptr failure[2];
+#pragma omp parallel sections num_threads(2)
+    {
+#pragma omp section
+      {
+        try {
+          track();
+        } catch (...) {
+          failure[0] = std::current_exception();
+        }
+      }
+#pragma omp section
+      {
+        try {
+          analysis.analyse(frame, cfg_.truncation(), one_thread);
+        } catch (...) {
+          failure[1] = std::current_exception();
+        }
+      }
+    }
+    for (const auto& f : failure)
+      if (f) std::rethrow_exception(f);
+  } else {
+    track();
+    analysis.analyse(frame, cfg_.truncation(), cfg_);
+  }
   IntegrateStats created;
   syncPlanes(created);
-  IntegrateStats stats = fuseDepth(frame, camera_to_world, cfg_);
+  IntegrateStats stats;
+  if (!planes_.empty()) stats = fuseDepth(analysis, camera_to_world, cfg_);
   stats.new_planes = std::move(created.new_planes);
   keepPoints(pts, true);
   ++frames_;
@@ -284,7 +322,11 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
     // A whole scene given as one organised cloud is a single view: keep the rims (Config).
     Config fuse_cfg = cfg_;
     if (whole_cloud) fuse_cfg.silhouette_guard_behind = false;
-    stats = fuseDepth(depth, world.sensor_pose, fuse_cfg);
+    if (!planes_.empty()) {
+      thread_local DepthFrameAnalysis analysis;
+      analysis.analyse(depth, fuse_cfg.truncation(), fuse_cfg);
+      stats = fuseDepth(analysis, world.sensor_pose, fuse_cfg);
+    }
   } else {
     // No pixel grid: splat each point along its PCA normal.
     const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);

@@ -204,6 +204,43 @@ TEST(Map, CorruptTruncatedAndForeignFilesNameTheFile) {
   EXPECT_THROW(Map::load(tmp.file("missing.psdf")), Error);
 }
 
+TEST(Map, SameMapOnOneAndTwoThreads) {
+  // With two threads, plane tracking and the frame's per-pixel analysis run side by side, and
+  // fusion and the kept points are split over blocks and points; the map is the same byte for
+  // byte as the single-threaded one.
+  Config one, two;
+  one.threads = 1;
+  two.threads = 2;
+  Map a{one}, b{two};
+  const AnalyticScene scene = tableScene();
+  for (const Pose& T : test::ringPoses({0, 0, 0.75}, 0.9, 0.55, 4)) {
+    const DepthFrame f = test::renderDepth(scene, Intrinsics{}, T);
+    a.integrate(f, T);
+    b.integrate(f, T);
+  }
+  ASSERT_EQ(a.planes().size(), 2u);
+  ASSERT_EQ(b.planes().size(), 2u);
+  for (std::size_t i = 0; i < 2; ++i) {
+    const PlaneSdf &pa = a.planes()[i], &pb = b.planes()[i];
+    EXPECT_EQ(pa.plane.normal, pb.plane.normal);
+    EXPECT_EQ(pa.plane.offset, pb.plane.offset);
+    ASSERT_EQ(pa.volume.numBlocks(), pb.volume.numBlocks());
+    std::size_t differing = 0;
+    for (std::size_t s = 0; s < pa.volume.numBlocks(); ++s) {
+      const TsdfBlock& ba = pa.volume.block(s);
+      const std::ptrdiff_t t = pb.volume.blockSlot(ba.index);
+      ASSERT_GE(t, 0);
+      const TsdfBlock& bb = pb.volume.block(static_cast<std::size_t>(t));
+      for (std::size_t v = 0; v < ba.voxels.size(); ++v)
+        differing +=
+            ba.voxels[v].sdf != bb.voxels[v].sdf || ba.voxels[v].weight != bb.voxels[v].weight;
+    }
+    EXPECT_EQ(differing, 0u) << "plane " << i;
+  }
+  EXPECT_GT(a.points().size(), 1000u);
+  EXPECT_EQ(a.points(), b.points());
+}
+
 TEST(Map, BadFramesAreErrors) {
   Map m{Config{}};
   DepthFrame f;
