@@ -275,17 +275,18 @@ struct PixelMeasurement {
 constexpr float kNormalScale = 32767.0f / 6.0f;
 constexpr float kCosineScale = 32767.0f / 4.0f;
 
-/// Quantises a measurement; `depth_scale` is the depth of one unit of dq.
+/// Quantises a measurement; `inv_depth_scale` is the number of dq units per metre of depth.
 inline PixelMeasurement encodeMeasurement(float nx, float ny, float d, float k, bool carve_only,
-                                          float depth_scale) {
+                                          float inv_depth_scale) {
   const auto q16 = [](float x, float scale) {
     const float y = std::clamp(x * scale, -32767.0f, 32767.0f);
-    return static_cast<std::int16_t>(y + (y >= 0.0f ? 0.5f : -0.5f));
+    // Round half away from zero without a branch (the signs of normals are unpredictable).
+    return static_cast<std::int16_t>(y + std::copysign(0.5f, y));
   };
   PixelMeasurement m;
   m.nx = q16(nx, kNormalScale);
   m.ny = q16(ny, kNormalScale);
-  m.dq = static_cast<std::uint16_t>(std::clamp(d / depth_scale + 0.5f, 1.0f, 65535.0f));
+  m.dq = static_cast<std::uint16_t>(std::clamp(d * inv_depth_scale + 0.5f, 1.0f, 65535.0f));
   const std::int16_t kq = std::max<std::int16_t>(1, q16(k, kCosineScale));
   m.kq = carve_only ? static_cast<std::int16_t>(-kq) : kq;
   return m;
@@ -340,9 +341,11 @@ void surfaceNormal(const float* above, const float* row, const float* below, int
   n[0] = cam.fx * du;
   n[1] = cam.fy * dv;
   n[2] = -(d + cam.fx * x * du + cam.fy * y * dv);
-  const float len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-  // cos(ray, normal) = d / (|n| |r|)
-  const float scale = d < kMinCosine * len * std::sqrt(x * x + y * y + 1.0f) ? 0.0f : 1.0f / len;
+  const float len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+  // cos(ray, normal) = d / (|n| |r|), compared squared (d > 0): one square root per pixel.
+  const float scale = d * d < kMinCosine * kMinCosine * len2 * (x * x + y * y + 1.0f)
+                          ? 0.0f
+                          : 1.0f / std::sqrt(len2);
   for (int i = 0; i < 3; ++i) n[i] *= scale;
 }
 
@@ -492,6 +495,7 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
   fm.pixels.resize(static_cast<std::size_t>(W) * H);
   k_exact.resize(static_cast<std::size_t>(W) * H);
   fm.depth_scale = cam.z_max / 65535.0f;
+  const float inv_depth_scale = 1.0f / fm.depth_scale;
   fm.tiles_x = (W + kGuardTile - 1) >> kGuardTileShift;
   fm.tiles_y = (H + kGuardTile - 1) >> kGuardTileShift;
   fm.guard.assign(static_cast<std::size_t>(fm.tiles_x) * fm.tiles_y,
@@ -542,11 +546,12 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
             if (silhouette) silhouette_cols.push_back(u);
           }
           if (k == 0.0f) {  // grazing: carve along the optical axis only
-            out[u] = encodeMeasurement(0.0f, 0.0f, d, 1.0f, true, fm.depth_scale);
+            out[u] = encodeMeasurement(0.0f, 0.0f, d, 1.0f, true, inv_depth_scale);
             continue;
           }
           k_out[u] = k;
-          out[u] = encodeMeasurement(n[0] / k, n[1] / k, d, k, false, fm.depth_scale);
+          const float inv_k = 1.0f / k;
+          out[u] = encodeMeasurement(n[0] * inv_k, n[1] * inv_k, d, k, false, inv_depth_scale);
         }
         rowEdgeDistance(edge_cols.data(), static_cast<int>(edge_cols.size()), W,
                         fm.edge_dist.data() + static_cast<std::size_t>(v) * W);
