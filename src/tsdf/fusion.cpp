@@ -489,9 +489,11 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
   const float footprint = 1.0f / std::min(cam.fx, cam.fy);  // pixel size at unit depth
   std::vector<float>& xn = fm.xn;
   xn.resize(W);
-  for (int u = 0; u < W; ++u) xn[u] = (static_cast<float>(u) - cam.cx) / cam.fx;
+  // As the voxel kernels compute them (no table gather there): (u - cx) * (1 / fx).
+  const float inv_fx = 1.0f / cam.fx, inv_fy = 1.0f / cam.fy;
+  for (int u = 0; u < W; ++u) xn[u] = (static_cast<float>(u) - cam.cx) * inv_fx;
   fm.yn.resize(H);
-  for (int v = 0; v < H; ++v) fm.yn[v] = (static_cast<float>(v) - cam.cy) / cam.fy;
+  for (int v = 0; v < H; ++v) fm.yn[v] = (static_cast<float>(v) - cam.cy) * inv_fy;
   fm.pixels.resize(static_cast<std::size_t>(W) * H);
   k_exact.resize(static_cast<std::size_t>(W) * H);
   fm.depth_scale = cam.z_max / 65535.0f;
@@ -758,15 +760,13 @@ struct DepthUpdateParams {
 /// block's x axis in camera coordinates (one row of voxels runs along it).
 struct RowKernel {
   const PixelMeasurement* pixels;
-  const float* xn;
-  const float* yn;
   const float* guard;
   const std::uint8_t* edge_dist;
   const std::uint8_t* silhouette_dist;
   const std::uint8_t* in_band;
   int W, H, tiles_x;
   float ax_x, ax_y, ax_z;
-  float fx, fy, cx, cy, z_min, z_max, w_lim, h_lim;
+  float fx, fy, cx, cy, inv_fx, inv_fy, z_min, z_max, w_lim, h_lim;
   float trunc, behind, guard_sdf, edge_scale, depth_scale, max_weight;
   bool guard_behind;
 };
@@ -789,9 +789,11 @@ inline void fuseRowScalar(const RowKernel& k, float rx, float ry, float rz, Tsdf
     const std::size_t pix = static_cast<std::size_t>(vi) * k.W + ui;
     const PixelMeasurement m = k.pixels[pix];
     if (m.dq == 0) continue;
-    const float q =
-        (m.nx * (px - k.xn[ui] * zc) + m.ny * (py - k.yn[vi] * zc)) * (1.0f / kNormalScale) +
-        (m.dq * k.depth_scale - zc);
+    // The pixel's normalised coordinates, computed as analysePixels tabulates them.
+    const float xn = (static_cast<float>(ui) - k.cx) * k.inv_fx;
+    const float yn = (static_cast<float>(vi) - k.cy) * k.inv_fy;
+    const float q = (m.nx * (px - xn * zc) + m.ny * (py - yn * zc)) * (1.0f / kNormalScale) +
+                    (m.dq * k.depth_scale - zc);
     if (q < -k.trunc) continue;  // behind the surface by more than the truncation (in depth)
     const float cos_ray = static_cast<float>(m.kq < 0 ? -m.kq : m.kq) * (1.0f / kCosineScale);
     float sdf = cos_ray * q;
@@ -868,8 +870,10 @@ __attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, f
   if (_mm256_movemask_ps(m) == 0) return;
   const __m256 nx = _mm256_cvtepi32_ps(_mm256_srai_epi32(_mm256_slli_epi32(w0, 16), 16));
   const __m256 ny = _mm256_cvtepi32_ps(_mm256_srai_epi32(w0, 16));
-  const __m256 xn = _mm256_mask_i32gather_ps(_mm256_setzero_ps(), k.xn, ui, m, 4);
-  const __m256 yn = _mm256_mask_i32gather_ps(_mm256_setzero_ps(), k.yn, vi, m, 4);
+  const __m256 xn = _mm256_mul_ps(_mm256_sub_ps(_mm256_cvtepi32_ps(ui), _mm256_set1_ps(k.cx)),
+                                  _mm256_set1_ps(k.inv_fx));
+  const __m256 yn = _mm256_mul_ps(_mm256_sub_ps(_mm256_cvtepi32_ps(vi), _mm256_set1_ps(k.cy)),
+                                  _mm256_set1_ps(k.inv_fy));
   const __m256 tangent = _mm256_add_ps(_mm256_mul_ps(nx, _mm256_sub_ps(px, _mm256_mul_ps(xn, zc))),
                                        _mm256_mul_ps(ny, _mm256_sub_ps(py, _mm256_mul_ps(yn, zc))));
   const __m256 q = _mm256_add_ps(
@@ -980,8 +984,6 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   // distance is never overestimated).
   const float edge_scale = std::min(fx, fy);
   const RowKernel kernel{fm.pixels.data(),
-                         fm.xn.data(),
-                         fm.yn.data(),
                          fm.guard.data(),
                          fm.edge_dist.data(),
                          fm.silhouette_dist.data(),
@@ -996,6 +998,8 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
                          fy,
                          cx,
                          cy,
+                         1.0f / fx,
+                         1.0f / fy,
                          cam.z_min,
                          cam.z_max,
                          w_lim,
