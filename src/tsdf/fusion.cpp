@@ -937,16 +937,29 @@ __attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, f
         _mm256_castps_si256(near));
     m = _mm256_or_ps(_mm256_and_ps(m, free_space), _mm256_castsi256_ps(fused));
   }
-  int bits = _mm256_movemask_ps(m);
+  const int bits = _mm256_movemask_ps(m);
   if (bits == 0) return;
-  alignas(32) float s[kTsdfBlockSide];
-  _mm256_store_ps(s, sdf);
-  while (bits != 0) {
-    const int x = __builtin_ctz(static_cast<unsigned>(bits));
-    bits &= bits - 1;
-    out.changed |= fuseVoxel(voxels[x], s[x], k.max_weight);
-    ++out.updates;
-  }
+  // fuseVoxel on the active lanes. The row's 8 voxels (sdf, weight pairs) load as two vectors;
+  // within 128-bit lanes, shuffling gives sdf and weight in voxel order 0 1 4 5 2 3 6 7, and
+  // unpacking puts them back. The new values and the mask are permuted to that order.
+  float* raw = &voxels[0].sdf;
+  const __m256 v0 = _mm256_loadu_ps(raw), v1 = _mm256_loadu_ps(raw + 8);
+  const __m256 old_s = _mm256_shuffle_ps(v0, v1, 0x88);
+  const __m256 old_w = _mm256_shuffle_ps(v0, v1, 0xdd);
+  const __m256i order = _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7);
+  const __m256 obs = _mm256_permutevar8x32_ps(sdf, order);
+  const __m256 act = _mm256_permutevar8x32_ps(m, order);
+  const __m256 w_plus = _mm256_add_ps(old_w, _mm256_set1_ps(1.0f));
+  const __m256 new_w = _mm256_min_ps(w_plus, _mm256_set1_ps(k.max_weight));
+  const __m256 new_s = _mm256_add_ps(old_s, _mm256_div_ps(_mm256_sub_ps(obs, old_s), w_plus));
+  const __m256 differs = _mm256_or_ps(_mm256_cmp_ps(new_s, old_s, _CMP_NEQ_UQ),
+                                      _mm256_cmp_ps(new_w, old_w, _CMP_NEQ_UQ));
+  out.changed |= _mm256_movemask_ps(_mm256_and_ps(differs, act)) != 0;
+  out.updates += static_cast<std::uint32_t>(__builtin_popcount(static_cast<unsigned>(bits)));
+  const __m256 s_out = _mm256_blendv_ps(old_s, new_s, act);
+  const __m256 w_out = _mm256_blendv_ps(old_w, new_w, act);
+  _mm256_storeu_ps(raw, _mm256_unpacklo_ps(s_out, w_out));
+  _mm256_storeu_ps(raw + 8, _mm256_unpackhi_ps(s_out, w_out));
 }
 
 /// True when this CPU runs the AVX2 kernel.
