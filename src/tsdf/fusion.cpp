@@ -4,8 +4,11 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <memory>
 #include <string>
 
 #include "planesdf/error.hpp"
@@ -91,23 +94,98 @@ class RecentKeys {
   int next_ = 0;
 };
 
-/// Collects, per thread, the keys of blocks that are not in the volume yet.
+/// A dense grid of the block cells around the frame's frustum (per frame, per volume): 1 where a
+/// block is allocated or was collected for allocation by any thread, else 0. Lookups that would
+/// hash a block key become one byte read. Bytes are relaxed atomics: threads may both see 0 and
+/// both collect a block (their key lists are merged without duplicates).
+class BlockGrid {
+ public:
+  /// Covers the blocks [lo, hi] when they are at most kMaxCells; else empty() (callers fall back
+  /// to the volume's hash map).
+  void reset(const TsdfVolume& vol, const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
+    size_ = 0;
+    if ((lo.array() > hi.array()).any()) return;
+    const Eigen::Vector3i dims = hi - lo + Eigen::Vector3i::Ones();
+    const double cells = dims.cast<double>().prod();
+    if (cells > static_cast<double>(kMaxCells)) return;
+    lo_ = lo;
+    dims_ = dims;
+    size_ = static_cast<std::size_t>(cells);
+    if (capacity_ < size_) {
+      cells_.reset(new std::atomic<std::uint8_t>[size_]);
+      capacity_ = size_;
+    }
+    for (std::size_t i = 0; i < size_; ++i) cells_[i].store(0, std::memory_order_relaxed);
+    if (cells <= static_cast<double>(vol.numBlocks())) {
+      for (int z = lo.z(); z <= hi.z(); ++z)
+        for (int y = lo.y(); y <= hi.y(); ++y)
+          for (int x = lo.x(); x <= hi.x(); ++x) {
+            const Eigen::Vector3i b(x, y, z);
+            if (vol.blockSlot(b) >= 0) cells_[index(b)].store(1, std::memory_order_relaxed);
+          }
+    } else {
+      for (std::size_t sl = 0; sl < vol.numBlocks(); ++sl) {
+        const std::ptrdiff_t i = find(vol.block(sl).index);
+        if (i >= 0) cells_[i].store(1, std::memory_order_relaxed);
+      }
+    }
+  }
+  bool empty() const { return size_ == 0; }
+  /// The cell of block b, or -1 outside the grid.
+  std::ptrdiff_t find(const Eigen::Vector3i& b) const {
+    if (size_ == 0) return -1;
+    const Eigen::Vector3i r = b - lo_;
+    if (static_cast<unsigned>(r.x()) >= static_cast<unsigned>(dims_.x()) ||
+        static_cast<unsigned>(r.y()) >= static_cast<unsigned>(dims_.y()) ||
+        static_cast<unsigned>(r.z()) >= static_cast<unsigned>(dims_.z()))
+      return -1;
+    return index(b);
+  }
+  bool known(std::ptrdiff_t i) const { return cells_[i].load(std::memory_order_relaxed) != 0; }
+  void mark(std::ptrdiff_t i) { cells_[i].store(1, std::memory_order_relaxed); }
+
+ private:
+  static constexpr std::size_t kMaxCells = std::size_t{1} << 22;
+  std::ptrdiff_t index(const Eigen::Vector3i& b) const {
+    const Eigen::Vector3i r = b - lo_;
+    return (static_cast<std::ptrdiff_t>(r.z()) * dims_.y() + r.y()) * dims_.x() + r.x();
+  }
+  Eigen::Vector3i lo_ = Eigen::Vector3i::Zero(), dims_ = Eigen::Vector3i::Zero();
+  std::size_t size_ = 0, capacity_ = 0;
+  std::unique_ptr<std::atomic<std::uint8_t>[]> cells_;
+};
+
+/// Collects, per thread, the keys of blocks that are not in the volume yet (looked up in the
+/// frame's block grid where it covers them, else in the volume and a per-thread set).
 class NewBlockCollector {
  public:
-  explicit NewBlockCollector(const TsdfVolume& vol) : vol_(vol) {}
+  NewBlockCollector(const TsdfVolume& vol, BlockGrid& grid) : vol_(vol), grid_(grid) {}
   void add(const Eigen::Vector3i& b) {
+    const std::ptrdiff_t i = grid_.find(b);
+    if (i >= 0) {
+      if (grid_.known(i)) return;
+      grid_.mark(i);
+      keys_.push_back(packBlockKey(b));
+      return;
+    }
     if (!blockIndexInRange(b)) return;
     const std::uint64_t key = packBlockKey(b);
     if (recent_.seen(key) || vol_.blockSlot(b) >= 0) return;
     if (set_.insert(key, 0).second) keys_.push_back(key);
   }
   const std::vector<std::uint64_t>& keys() const { return keys_; }
-  /// True when every block of the box [lo, hi] is allocated or collected.
+  /// True when every block of the box [lo, hi] is allocated or collected (by this thread, or by
+  /// any thread within the grid).
   bool allKnown(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) const {
     for (int z = lo.z(); z <= hi.z(); ++z)
       for (int y = lo.y(); y <= hi.y(); ++y)
         for (int x = lo.x(); x <= hi.x(); ++x) {
           const Eigen::Vector3i b(x, y, z);
+          const std::ptrdiff_t i = grid_.find(b);
+          if (i >= 0) {
+            if (!grid_.known(i)) return false;
+            continue;
+          }
           if (!blockIndexInRange(b)) return false;
           if (vol_.blockSlot(b) < 0 && set_.find(packBlockKey(b)) == BlockHashMap::kNotFound)
             return false;
@@ -117,6 +195,7 @@ class NewBlockCollector {
 
  private:
   const TsdfVolume& vol_;
+  BlockGrid& grid_;
   RecentKeys recent_;
   BlockHashMap set_;
   std::vector<std::uint64_t> keys_;
@@ -190,7 +269,7 @@ inline Eigen::Vector3i floorVec(const Eigen::Vector3f& p) {
 /// again while the same (a, b) repeats.
 class SegmentBlocks {
  public:
-  explicit SegmentBlocks(const TsdfVolume& vol) : collector_(vol) {
+  SegmentBlocks(const TsdfVolume& vol, BlockGrid& grid) : collector_(vol, grid) {
     done_.fill({Eigen::Vector3i::Zero(), Eigen::Vector3i::Constant(-1)});  // never matches
   }
   /// The segment A-B in block units.
@@ -204,6 +283,21 @@ class SegmentBlocks {
       slot = {a, b};
     else
       failed_ = {a, b};
+  }
+  /// True when every block of the box [lo, hi] is known to be allocated or collected (it lies
+  /// in the last box found so). Segments within such a box cannot add a block.
+  bool insideKnownBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) const {
+    return (lo.array() >= known_box_.first.array()).all() &&
+           (hi.array() <= known_box_.second.array()).all();
+  }
+  /// Checks the box [lo, hi] (after its segments were added) and remembers it when every block
+  /// in it is known; a box found to hold an unknown block is not checked again while it repeats.
+  void noteBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
+    if (lo == failed_box_.first && hi == failed_box_.second) return;
+    if (collector_.allKnown(lo, hi))
+      known_box_ = {lo, hi};
+    else
+      failed_box_ = {lo, hi};
   }
   const std::vector<std::uint64_t>& newKeys() const { return collector_.keys(); }
 
@@ -221,6 +315,10 @@ class SegmentBlocks {
   std::array<std::pair<Eigen::Vector3i, Eigen::Vector3i>, kDoneSlots> done_;
   std::pair<Eigen::Vector3i, Eigen::Vector3i> failed_{Eigen::Vector3i::Zero(),
                                                       Eigen::Vector3i::Constant(-1)};
+  std::pair<Eigen::Vector3i, Eigen::Vector3i> known_box_{Eigen::Vector3i::Zero(),
+                                                         Eigen::Vector3i::Constant(-1)};
+  std::pair<Eigen::Vector3i, Eigen::Vector3i> failed_box_{Eigen::Vector3i::Zero(),
+                                                          Eigen::Vector3i::Constant(-1)};
 };
 
 // ---- depth frames ---------------------------------------------------------------------------
@@ -575,9 +673,155 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
 /// (`in_band`, the others only carve) and allocates the blocks crossed by the ray segments of
 /// in-band points within the truncation of their surface (|depth difference| * k <= trunc),
 /// clipped to the band's voxels. Returns the in-band count.
+/// The local AABB of the frustum between camera depths z0 and z1.
+void frustumLocalBox(const Camera& cam, double z0, double z1, Eigen::Vector3d& lo,
+                     Eigen::Vector3d& hi) {
+  lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  hi = -lo;
+  const double us[2] = {-0.5, cam.width - 0.5}, vs[2] = {-0.5, cam.height - 0.5};
+  const double zs[2] = {z0, z1};
+  for (const double z : zs)
+    for (const double u : us)
+      for (const double v : vs) {
+        const Eigen::Vector3d pc(z * (u - cam.cx) / cam.fx, z * (v - cam.cy) / cam.fy, z);
+        const Eigen::Vector3d pl = cam.R_cl_d.transpose() * (pc - cam.t_cl_d);
+        lo = lo.cwiseMin(pl);
+        hi = hi.cwiseMax(pl);
+      }
+}
+
+/// What the allocation pass reads for one row of pixels.
+struct AllocRow {
+  const float* depth;
+  const float* k;
+  const float* xn;
+  std::uint8_t* flag;
+  int W;
+  float dir_col[3];  ///< the ray's change per unit xn (camera x axis in local coordinates)
+  float dir_row[3];  ///< the ray at xn = 0 for this row
+  float t[3];        ///< camera centre (local)
+  float t_bs[3];     ///< camera centre in block units
+  float trunc, inv_bs;
+  Band band;
+};
+
+/// One pixel of the allocation pass (the reference code; allocateRowAvx2 computes the same
+/// values). Returns 1 when the pixel's point is in the band.
+inline int allocatePixel(const AllocRow& r, int u, SegmentBlocks& segments) {
+  r.flag[u] = 0;
+  const float k = r.k[u];
+  if (k == 0.0f) return 0;  // no measurement, or grazing (carves only)
+  const float d = r.depth[u];
+  // The ray in local coordinates per unit depth, and the point's height.
+  const float xu = r.xn[u];
+  const float dir[3] = {xu * r.dir_col[0] + r.dir_row[0], xu * r.dir_col[1] + r.dir_row[1],
+                        xu * r.dir_col[2] + r.dir_row[2]};
+  const float pz = r.t[2] + d * dir[2];
+  if (!(pz >= r.band.pt_lo && pz <= r.band.pt_hi)) return 0;
+  r.flag[u] = 1;
+  // Segment over depths d + s of this pixel's ray, for the voxels it fuses: trunc / k in front
+  // (distance trunc), behind up to the distance kBehindFraction * trunc and at most trunc in
+  // depth; clipped to the band's voxels.
+  float s0 = -r.trunc / k, s1 = std::min(r.trunc, -kBehindFraction * s0);
+  if (dir[2] != 0.0f) {
+    float sa = (r.band.alloc_lo - pz) / dir[2], sb = (r.band.alloc_hi - pz) / dir[2];
+    if (sa > sb) std::swap(sa, sb);
+    s0 = std::max(s0, sa);
+    s1 = std::min(s1, sb);
+  }
+  if (s0 > s1) return 1;
+  const float a0 = (d + s0) * r.inv_bs, a1 = (d + s1) * r.inv_bs;
+  segments.add(
+      Eigen::Vector3f(r.t_bs[0] + a0 * dir[0], r.t_bs[1] + a0 * dir[1], r.t_bs[2] + a0 * dir[2]),
+      Eigen::Vector3f(r.t_bs[0] + a1 * dir[0], r.t_bs[1] + a1 * dir[1], r.t_bs[2] + a1 * dir[2]));
+  return 1;
+}
+
+#if PLANESDF_AVX2_KERNEL
+/// allocatePixel for a row, 8 pixels at a time (AVX2, no FMA: every lane performs the scalar
+/// code's operations in the same order, so flags and segments are bit-identical). A group whose
+/// segments' block box lies inside a box already known to be allocated skips the segments (they
+/// cannot add a block). Returns the in-band count.
+__attribute__((target("avx2"))) int allocateRowAvx2(const AllocRow& r, SegmentBlocks& segments) {
+  int count = 0, u = 0;
+  const __m256 zero = _mm256_setzero_ps();
+  for (; u + 8 <= r.W; u += 8) {
+    const __m256 k = _mm256_loadu_ps(r.k + u);
+    __m256 m = _mm256_cmp_ps(k, zero, _CMP_NEQ_UQ);
+    if (_mm256_movemask_ps(m) == 0) {
+      std::memset(r.flag + u, 0, 8);
+      continue;
+    }
+    const __m256 d = _mm256_loadu_ps(r.depth + u);
+    const __m256 xu = _mm256_loadu_ps(r.xn + u);
+    __m256 dir[3];
+    for (int i = 0; i < 3; ++i)
+      dir[i] = _mm256_add_ps(_mm256_mul_ps(xu, _mm256_set1_ps(r.dir_col[i])),
+                             _mm256_set1_ps(r.dir_row[i]));
+    const __m256 pz = _mm256_add_ps(_mm256_set1_ps(r.t[2]), _mm256_mul_ps(d, dir[2]));
+    m = _mm256_and_ps(m,
+                      _mm256_and_ps(_mm256_cmp_ps(pz, _mm256_set1_ps(r.band.pt_lo), _CMP_GE_OQ),
+                                    _mm256_cmp_ps(pz, _mm256_set1_ps(r.band.pt_hi), _CMP_LE_OQ)));
+    const int in_band = _mm256_movemask_ps(m);
+    for (int i = 0; i < 8; ++i) r.flag[u + i] = static_cast<std::uint8_t>((in_band >> i) & 1);
+    if (in_band == 0) continue;
+    count += __builtin_popcount(static_cast<unsigned>(in_band));
+    const __m256 trunc = _mm256_set1_ps(r.trunc);
+    __m256 s0 = _mm256_div_ps(_mm256_set1_ps(-r.trunc), k);
+    __m256 s1 = _mm256_min_ps(_mm256_mul_ps(_mm256_set1_ps(-kBehindFraction), s0), trunc);
+    const __m256 sa = _mm256_div_ps(_mm256_sub_ps(_mm256_set1_ps(r.band.alloc_lo), pz), dir[2]);
+    const __m256 sb = _mm256_div_ps(_mm256_sub_ps(_mm256_set1_ps(r.band.alloc_hi), pz), dir[2]);
+    const __m256 swap = _mm256_cmp_ps(sa, sb, _CMP_GT_OQ);
+    const __m256 lo = _mm256_blendv_ps(sa, sb, swap), hi = _mm256_blendv_ps(sb, sa, swap);
+    const __m256 clip = _mm256_cmp_ps(dir[2], zero, _CMP_NEQ_UQ);
+    s0 = _mm256_blendv_ps(s0, _mm256_max_ps(lo, s0), clip);
+    s1 = _mm256_blendv_ps(s1, _mm256_min_ps(hi, s1), clip);
+    const int seg = in_band & ~_mm256_movemask_ps(_mm256_cmp_ps(s0, s1, _CMP_GT_OQ));
+    if (seg == 0) continue;
+    const __m256 inv_bs = _mm256_set1_ps(r.inv_bs);
+    const __m256 a0 = _mm256_mul_ps(_mm256_add_ps(d, s0), inv_bs);
+    const __m256 a1 = _mm256_mul_ps(_mm256_add_ps(d, s1), inv_bs);
+    alignas(32) float A[3][8], B[3][8];
+    alignas(32) int ia[3][8], ib[3][8];
+    for (int i = 0; i < 3; ++i) {
+      const __m256 tb = _mm256_set1_ps(r.t_bs[i]);
+      const __m256 pa = _mm256_add_ps(tb, _mm256_mul_ps(a0, dir[i]));
+      const __m256 pb = _mm256_add_ps(tb, _mm256_mul_ps(a1, dir[i]));
+      _mm256_store_ps(A[i], pa);
+      _mm256_store_ps(B[i], pb);
+      // floorToInt: truncate, minus one where that rounded up.
+      const __m256i ta = _mm256_cvttps_epi32(pa), tb_ = _mm256_cvttps_epi32(pb);
+      _mm256_store_si256(reinterpret_cast<__m256i*>(ia[i]),
+                         _mm256_add_epi32(ta, _mm256_castps_si256(_mm256_cmp_ps(
+                                                  pa, _mm256_cvtepi32_ps(ta), _CMP_LT_OQ))));
+      _mm256_store_si256(reinterpret_cast<__m256i*>(ib[i]),
+                         _mm256_add_epi32(tb_, _mm256_castps_si256(_mm256_cmp_ps(
+                                                   pb, _mm256_cvtepi32_ps(tb_), _CMP_LT_OQ))));
+    }
+    Eigen::Vector3i box_lo = Eigen::Vector3i::Constant(std::numeric_limits<int>::max());
+    Eigen::Vector3i box_hi = Eigen::Vector3i::Constant(std::numeric_limits<int>::min());
+    for (int l = 0; l < 8; ++l) {
+      if (!((seg >> l) & 1)) continue;
+      for (int i = 0; i < 3; ++i) {
+        box_lo[i] = std::min({box_lo[i], ia[i][l], ib[i][l]});
+        box_hi[i] = std::max({box_hi[i], ia[i][l], ib[i][l]});
+      }
+    }
+    if (segments.insideKnownBox(box_lo, box_hi)) continue;
+    for (int l = 0; l < 8; ++l)
+      if ((seg >> l) & 1)
+        segments.add(Eigen::Vector3f(A[0][l], A[1][l], A[2][l]),
+                     Eigen::Vector3f(B[0][l], B[1][l], B[2][l]));
+    segments.noteBox(box_lo, box_hi);
+  }
+  for (; u < r.W; ++u) count += allocatePixel(r, u, segments);
+  return count;
+}
+#endif
+
 std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
                            const std::vector<float>& k_exact, const FrameMeasurements& fm,
-                           const Camera& cam, const Band& band, int threads,
+                           const Camera& cam, const Band& band, int threads, bool simd,
                            std::vector<std::uint8_t>& in_band,
                            std::vector<Eigen::Vector3i>& allocated) {
   const int W = cam.width, H = cam.height;
@@ -587,49 +831,49 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
   const Eigen::Vector3f& t = cam.t_lc;
   in_band.resize(static_cast<std::size_t>(W) * H + kGatherPadding);
   std::vector<std::vector<std::uint64_t>> new_keys(threads);
+  // The block cells segments can reach: the frustum out to z_max + trunc, the allocation band,
+  // one block of margin. (Segments leaving it still work, through hash lookups.)
+  thread_local BlockGrid grid_scratch;
+  BlockGrid& grid = grid_scratch;  // the calling thread's (inside the parallel region too)
+  {
+    Eigen::Vector3d lo, hi;
+    frustumLocalBox(cam, cam.z_min, static_cast<double>(cam.z_max) + trunc, lo, hi);
+    lo.z() = std::max(lo.z(), static_cast<double>(band.alloc_lo));
+    hi.z() = std::min(hi.z(), static_cast<double>(band.alloc_hi));
+    const double bs = vol.blockSize();
+    const auto cell = [&](double x) {
+      return static_cast<int>(std::clamp(std::floor(x / bs), -1e9, 1e9));
+    };
+    grid.reset(vol, Eigen::Vector3i(cell(lo.x()), cell(lo.y()), cell(lo.z())).array() - 1,
+               Eigen::Vector3i(cell(hi.x()), cell(hi.y()), cell(hi.z())).array() + 1);
+  }
   std::size_t count = 0;
 #pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : count)
   {
-    SegmentBlocks segments(vol);
+    SegmentBlocks segments(vol, grid);
 #pragma omp for schedule(dynamic, 8)
     for (int v = 0; v < H; ++v) {
       const float yn = fm.yn[v];
-      const float row_dir[3] = {yn * R(0, 1) + R(0, 2), yn * R(1, 1) + R(1, 2),
-                                yn * R(2, 1) + R(2, 2)};
       const std::size_t row = static_cast<std::size_t>(v) * W;
-      const float* depth = depth_img.data() + row;
-      const float* ks = k_exact.data() + row;
-      std::uint8_t* flag = in_band.data() + row;
-      for (int u = 0; u < W; ++u) {
-        flag[u] = 0;
-        const float k = ks[u];
-        if (k == 0.0f) continue;  // no measurement, or grazing (carves only)
-        const float d = depth[u];
-        // The ray in local coordinates per unit depth, and the point's height.
-        const float xu = fm.xn[u];
-        const float dir[3] = {xu * R(0, 0) + row_dir[0], xu * R(1, 0) + row_dir[1],
-                              xu * R(2, 0) + row_dir[2]};
-        const float pz = t.z() + d * dir[2];
-        if (!(pz >= band.pt_lo && pz <= band.pt_hi)) continue;
-        flag[u] = 1;
-        ++count;
-        // Segment over depths d + s of this pixel's ray, for the voxels it fuses: trunc / k in
-        // front (distance trunc), behind up to the distance kBehindFraction * trunc and at most
-        // trunc in depth; clipped to the band's voxels.
-        float s0 = -trunc / k, s1 = std::min(trunc, -kBehindFraction * s0);
-        if (dir[2] != 0.0f) {
-          float sa = (band.alloc_lo - pz) / dir[2], sb = (band.alloc_hi - pz) / dir[2];
-          if (sa > sb) std::swap(sa, sb);
-          s0 = std::max(s0, sa);
-          s1 = std::min(s1, sb);
-        }
-        if (s0 > s1) continue;
-        const float a0 = (d + s0) * inv_bs, a1 = (d + s1) * inv_bs;
-        segments.add(Eigen::Vector3f(t.x() * inv_bs + a0 * dir[0], t.y() * inv_bs + a0 * dir[1],
-                                     t.z() * inv_bs + a0 * dir[2]),
-                     Eigen::Vector3f(t.x() * inv_bs + a1 * dir[0], t.y() * inv_bs + a1 * dir[1],
-                                     t.z() * inv_bs + a1 * dir[2]));
+      const AllocRow r{depth_img.data() + row,
+                       k_exact.data() + row,
+                       fm.xn.data(),
+                       in_band.data() + row,
+                       W,
+                       {R(0, 0), R(1, 0), R(2, 0)},
+                       {yn * R(0, 1) + R(0, 2), yn * R(1, 1) + R(1, 2), yn * R(2, 1) + R(2, 2)},
+                       {t.x(), t.y(), t.z()},
+                       {t.x() * inv_bs, t.y() * inv_bs, t.z() * inv_bs},
+                       trunc,
+                       inv_bs,
+                       band};
+#if PLANESDF_AVX2_KERNEL
+      if (simd) {
+        count += static_cast<std::size_t>(allocateRowAvx2(r, segments));
+        continue;
       }
+#endif
+      for (int u = 0; u < W; ++u) count += static_cast<std::size_t>(allocatePixel(r, u, segments));
     }
     new_keys[omp_get_thread_num()] = segments.newKeys();
   }
@@ -645,18 +889,8 @@ std::vector<std::uint32_t> frustumCandidates(const TsdfVolume& vol, const Camera
   std::vector<std::uint32_t> slots;
   Eigen::Vector3i vlo, vhi;
   if (!vol.blockBounds(&vlo, &vhi)) return slots;
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-  Eigen::Vector3d hi = -lo;
-  const double us[2] = {-0.5, cam.width - 0.5}, vs[2] = {-0.5, cam.height - 0.5};
-  const double zs[2] = {cam.z_min, cam.z_max};
-  for (const double z : zs)
-    for (const double u : us)
-      for (const double v : vs) {
-        const Eigen::Vector3d pc(z * (u - cam.cx) / cam.fx, z * (v - cam.cy) / cam.fy, z);
-        const Eigen::Vector3d pl = cam.R_cl_d.transpose() * (pc - cam.t_cl_d);
-        lo = lo.cwiseMin(pl);
-        hi = hi.cwiseMax(pl);
-      }
+  Eigen::Vector3d lo, hi;
+  frustumLocalBox(cam, cam.z_min, cam.z_max, lo, hi);
   lo.z() = std::max(lo.z(), static_cast<double>(band.vox_lo));
   hi.z() = std::min(hi.z(), static_cast<double>(band.vox_hi));
   if ((lo.array() > hi.array()).any()) return slots;
@@ -1252,9 +1486,9 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
   // Per-thread scratch reused across calls (every entry is rewritten): no large allocation and
   // page faulting per call.
   thread_local std::vector<std::uint8_t> in_band;
-  res.num_points_fused =
-      allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, in_band, res.allocated_blocks);
-
+  const bool simd = cfg.simd && cpuHasAvx2();
+  res.num_points_fused = allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, simd, in_band,
+                                        res.allocated_blocks);
   const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band);
   std::vector<BlockOutcome> outcomes(slots.size());
   const FrustumCull cull(cam);
@@ -1265,7 +1499,7 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
                         static_cast<float>(vol.voxelSize()),
                         band,
                         cfg.silhouette_guard_behind,
-                        cfg.simd && cpuHasAvx2()};
+                        simd};
   const std::vector<std::uint32_t> order = imageOrder(vol, slots, cam);
   const int n = static_cast<int>(order.size());
 #pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4)
