@@ -822,7 +822,7 @@ __attribute__((target("avx2"))) int allocateRowAvx2(const AllocRow& r, SegmentBl
 std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
                            const std::vector<float>& k_exact, const FrameMeasurements& fm,
                            const Camera& cam, const Band& band, int threads, bool simd,
-                           std::vector<std::uint8_t>& in_band,
+                           BlockGrid& grid, std::vector<std::uint8_t>& in_band,
                            std::vector<Eigen::Vector3i>& allocated) {
   const int W = cam.width, H = cam.height;
   const float trunc = static_cast<float>(vol.truncation());
@@ -833,8 +833,6 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
   std::vector<std::vector<std::uint64_t>> new_keys(threads);
   // The block cells segments can reach: the frustum out to z_max + trunc, the allocation band,
   // one block of margin. (Segments leaving it still work, through hash lookups.)
-  thread_local BlockGrid grid_scratch;
-  BlockGrid& grid = grid_scratch;  // the calling thread's (inside the parallel region too)
   {
     Eigen::Vector3d lo, hi;
     frustumLocalBox(cam, cam.z_min, static_cast<double>(cam.z_max) + trunc, lo, hi);
@@ -885,7 +883,7 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
 /// the voxel band, in slot order. Enumerates the AABB's block cells or scans all blocks,
 /// whichever is fewer.
 std::vector<std::uint32_t> frustumCandidates(const TsdfVolume& vol, const Camera& cam,
-                                             const Band& band) {
+                                             const Band& band, const BlockGrid& grid) {
   std::vector<std::uint32_t> slots;
   Eigen::Vector3i vlo, vhi;
   if (!vol.blockBounds(&vlo, &vhi)) return slots;
@@ -907,7 +905,11 @@ std::vector<std::uint32_t> frustumCandidates(const TsdfVolume& vol, const Camera
     for (int z = blo.z(); z <= bhi.z(); ++z)
       for (int y = blo.y(); y <= bhi.y(); ++y)
         for (int x = blo.x(); x <= bhi.x(); ++x) {
-          const std::ptrdiff_t s = vol.blockSlot(Eigen::Vector3i(x, y, z));
+          const Eigen::Vector3i b(x, y, z);
+          // The frame's grid knows every allocated block it covers: no lookup for empty cells.
+          const std::ptrdiff_t g = grid.find(b);
+          if (g >= 0 && !grid.known(g)) continue;
+          const std::ptrdiff_t s = vol.blockSlot(b);
           if (s >= 0) slots.push_back(static_cast<std::uint32_t>(s));
         }
     std::sort(slots.begin(), slots.end());
@@ -929,25 +931,31 @@ std::vector<std::uint32_t> imageOrder(const TsdfVolume& vol,
   constexpr double kTile = 32.0;
   const double half = 0.5 * vol.blockSize();
   const int tiles_x = static_cast<int>(std::ceil(cam.width / kTile)) + 2;
-  std::vector<std::pair<std::int64_t, std::uint32_t>> keyed(slots.size());
+  const int tiles_y = static_cast<int>(std::ceil(cam.height / kTile)) + 2;
+  const std::int64_t behind = static_cast<std::int64_t>(tiles_y) * tiles_x;  // the last bucket
+  std::vector<std::int64_t> keyed(slots.size());
   for (std::size_t i = 0; i < slots.size(); ++i) {
     const Eigen::Vector3d c_local = vol.block(slots[i]).index.cast<double>() * vol.blockSize() +
                                     Eigen::Vector3d::Constant(half);
     const Eigen::Vector3d c = cam.R_cl_d * c_local + cam.t_cl_d;
-    std::int64_t key = std::numeric_limits<std::int64_t>::max();
+    std::int64_t key = behind;
     if (c.z() > 1e-6) {
       const double u = cam.fx * c.x() / c.z() + cam.cx, v = cam.fy * c.y() / c.z() + cam.cy;
       const auto tile = [&](double x, int n) {
         return std::clamp(static_cast<int>(std::floor(x / kTile)) + 1, 0, n);
       };
-      const int ty = tile(v, static_cast<int>(std::ceil(cam.height / kTile)) + 1);
+      const int ty = tile(v, tiles_y - 1);
       key = static_cast<std::int64_t>(ty) * tiles_x + tile(u, tiles_x - 1);
     }
-    keyed[i] = {key, static_cast<std::uint32_t>(i)};
+    keyed[i] = key;
   }
-  std::sort(keyed.begin(), keyed.end());
+  // Counting sort by tile (stable: ties keep slot order).
+  std::vector<std::uint32_t> start(static_cast<std::size_t>(behind) + 2, 0);
+  for (const std::int64_t k : keyed) ++start[static_cast<std::size_t>(k) + 1];
+  for (std::size_t b = 1; b < start.size(); ++b) start[b] += start[b - 1];
   std::vector<std::uint32_t> order(slots.size());
-  for (std::size_t i = 0; i < keyed.size(); ++i) order[i] = keyed[i].second;
+  for (std::size_t i = 0; i < keyed.size(); ++i)
+    order[start[static_cast<std::size_t>(keyed[i])]++] = static_cast<std::uint32_t>(i);
   return order;
 }
 
@@ -1486,10 +1494,11 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
   // Per-thread scratch reused across calls (every entry is rewritten): no large allocation and
   // page faulting per call.
   thread_local std::vector<std::uint8_t> in_band;
+  thread_local BlockGrid grid;  // the block cells around the frustum (see allocateInBand)
   const bool simd = cfg.simd && cpuHasAvx2();
-  res.num_points_fused = allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, simd, in_band,
-                                        res.allocated_blocks);
-  const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band);
+  res.num_points_fused = allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, simd, grid,
+                                        in_band, res.allocated_blocks);
+  const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band, grid);
   std::vector<BlockOutcome> outcomes(slots.size());
   const FrustumCull cull(cam);
   DepthUpdateParams prm{&a.fm,
