@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -118,7 +119,9 @@ class Map {
   PlaneTracker tracker_;
   std::vector<PlaneSdf> planes_;
   std::vector<Eigen::Vector3f> points_;
-  BlockHashMap point_cells_;  ///< cells already holding a kept point (used as a set)
+  /// Cells already holding a kept point (used as sets), split in two by key so that two threads
+  /// can de-duplicate a frame's points side by side.
+  std::array<BlockHashMap, 2> point_cells_;
   std::uint64_t frames_ = 0;
 };
 

@@ -193,22 +193,48 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
       }
     }
   }
-  // The cell set is large and its lookups miss the cache: request the slots some points ahead.
-  // A point in the same cell as the point before it is a duplicate whatever the set holds.
+  if (!dedup) {
+    for (const auto& list : lists)
+      for (const auto& entry : list) points_.push_back(pts[entry.first]);
+    return;
+  }
+  // De-duplication: a point is kept when its cell holds none yet. The cells are split in two
+  // sets by key, each owned by one thread, which marks the list entries it accepts; the kept
+  // points are then appended in input order (the same points for any thread count). The sets
+  // are large and their lookups miss the cache: each thread requests its slots some points
+  // ahead. A point in the same cell as the set's point before it is a duplicate whatever the
+  // set holds.
+  thread_local std::vector<std::vector<std::uint8_t>> accepted_scratch;
+  auto& accepted = accepted_scratch;
+  accepted.resize(lists.size());
+  for (std::size_t l = 0; l < lists.size(); ++l) accepted[l].assign(lists[l].size(), 0);
   constexpr std::size_t kAhead = 16;
-  std::uint64_t last = detail::kEmptyBlockKey;
-  for (const auto& list : lists)
-    for (std::size_t j = 0; j < list.size(); ++j) {
-      const auto [i, key] = list[j];
-      if (!dedup) {
-        points_.push_back(pts[i]);
-        continue;
+  const int parts = std::min(threads, static_cast<int>(detail::kPointCellSets));
+#pragma omp parallel num_threads(parts) if (parts > 1)
+  {
+    const auto part = static_cast<std::size_t>(omp_get_thread_num());
+    const auto step = static_cast<std::size_t>(omp_get_num_threads());
+    std::uint64_t last[detail::kPointCellSets];
+    std::fill(std::begin(last), std::end(last), detail::kEmptyBlockKey);
+    for (std::size_t l = 0; l < lists.size(); ++l) {
+      const auto& list = lists[l];
+      for (std::size_t j = 0; j < list.size(); ++j) {
+        if (j + kAhead < list.size()) {
+          const std::uint64_t ahead = list[j + kAhead].second;
+          const std::size_t s = detail::pointCellSet(ahead);
+          if (s % step == part) point_cells_[s].prefetch(ahead);
+        }
+        const std::uint64_t key = list[j].second;
+        const std::size_t s = detail::pointCellSet(key);
+        if (s % step != part || key == last[s]) continue;
+        last[s] = key;
+        if (point_cells_[s].insertKey(key)) accepted[l][j] = 1;
       }
-      if (j + kAhead < list.size()) point_cells_.prefetch(list[j + kAhead].second);
-      if (key == last) continue;
-      last = key;
-      if (point_cells_.insertKey(key)) points_.push_back(pts[i]);
     }
+  }
+  for (std::size_t l = 0; l < lists.size(); ++l)
+    for (std::size_t j = 0; j < lists[l].size(); ++j)
+      if (accepted[l][j]) points_.push_back(pts[lists[l][j].first]);
 }
 
 IntegrateStats Map::fuseDepth(const DepthFrameAnalysis& analysis, const Pose& camera_to_world,

@@ -3,7 +3,10 @@
 #include <Eigen/Core>
 
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
+
+#include "planesdf/tsdf.hpp"
 
 namespace planesdf::detail {
 
@@ -15,6 +18,13 @@ inline std::uint64_t cellKeyOf(const Eigen::Vector3f& p, double cell) {
            0x1fffffu;
   };
   return q(p.x()) | (q(p.y()) << 21) | (q(p.z()) << 42);
+}
+
+/// Which of the map's kPointCellSets sets holds cell `key` (a high bit of the mixed key, so that
+/// each set's slots stay evenly used).
+constexpr std::size_t kPointCellSets = 2;
+inline std::size_t pointCellSet(std::uint64_t key) {
+  return static_cast<std::size_t>(mixBlockKey(key) >> 47) % kPointCellSets;
 }
 
 }  // namespace planesdf::detail

@@ -228,8 +228,10 @@ Map Map::deserialize(const std::string& bytes, const std::string& name) {
   if (r.remaining() != 0) r.fail("unexpected bytes after the points");
   m.tracker_.restore(std::move(planes), has_up ? std::optional<Eigen::Vector3d>(up) : std::nullopt);
   if (m.cfg_.point_cell > 0.0)
-    for (const auto& p : m.points_)
-      m.point_cells_.insert(detail::cellKeyOf(p, m.cfg_.point_cell), 0);
+    for (const auto& p : m.points_) {
+      const std::uint64_t key = detail::cellKeyOf(p, m.cfg_.point_cell);
+      m.point_cells_[detail::pointCellSet(key)].insert(key, 0);
+    }
   return m;
 }
 

@@ -174,6 +174,12 @@ TEST(Map, LoadedMapKeepsIntegrating) {
   const IntegrateStats s = back.integrate(test::renderDepth(tableScene(), Intrinsics{}, T), T);
   EXPECT_EQ(back.planes().size(), planes);  // same planes recognised, no duplicates
   EXPECT_GT(s.blocks_updated, 0u);
+  // The loaded map remembers which cells hold a kept point: a frame seen again keeps exactly
+  // what it keeps in the map that never left memory (and not every point a second time).
+  Map same = tableMap();
+  same.integrate(test::renderDepth(tableScene(), Intrinsics{}, T), T);
+  EXPECT_EQ(back.points().size(), same.points().size());
+  EXPECT_TRUE(back.points() == same.points());
 }
 
 TEST(Map, CorruptTruncatedAndForeignFilesNameTheFile) {
