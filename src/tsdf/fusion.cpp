@@ -100,10 +100,12 @@ class RecentKeys {
 /// both collect a block (their key lists are merged without duplicates).
 class BlockGrid {
  public:
-  /// Covers the blocks [lo, hi] when they are at most kMaxCells; else empty() (callers fall back
-  /// to the volume's hash map).
-  void reset(const TsdfVolume& vol, const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
+  /// Covers the blocks of [lo, hi] that have keys (blockIndexInRange) when they are at most
+  /// kMaxCells; else empty() (callers fall back to the volume's hash map).
+  void reset(const TsdfVolume& vol, Eigen::Vector3i lo, Eigen::Vector3i hi) {
     size_ = 0;
+    lo = lo.cwiseMax(Eigen::Vector3i::Constant(-detail::kBlockKeyOffset));
+    hi = hi.cwiseMin(Eigen::Vector3i::Constant(detail::kBlockKeyOffset - 1));
     if ((lo.array() > hi.array()).any()) return;
     const Eigen::Vector3i dims = hi - lo + Eigen::Vector3i::Ones();
     const double cells = dims.cast<double>().prod();
@@ -130,6 +132,7 @@ class BlockGrid {
       }
     }
   }
+  void clear() { size_ = 0; }
   bool empty() const { return size_ == 0; }
   /// The cell of block b, or -1 outside the grid.
   std::ptrdiff_t find(const Eigen::Vector3i& b) const {
@@ -839,11 +842,14 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
     lo.z() = std::max(lo.z(), static_cast<double>(band.alloc_lo));
     hi.z() = std::min(hi.z(), static_cast<double>(band.alloc_hi));
     const double bs = vol.blockSize();
-    const auto cell = [&](double x) {
+    const auto cell = [&](double x) {  // clamped well inside int
       return static_cast<int>(std::clamp(std::floor(x / bs), -1e9, 1e9));
     };
-    grid.reset(vol, Eigen::Vector3i(cell(lo.x()), cell(lo.y()), cell(lo.z())).array() - 1,
-               Eigen::Vector3i(cell(hi.x()), cell(hi.y()), cell(hi.z())).array() + 1);
+    if (lo.allFinite() && hi.allFinite())
+      grid.reset(vol, Eigen::Vector3i(cell(lo.x()), cell(lo.y()), cell(lo.z())).array() - 1,
+                 Eigen::Vector3i(cell(hi.x()), cell(hi.y()), cell(hi.z())).array() + 1);
+    else
+      grid.clear();  // a non-finite pose: no grid
   }
   std::size_t count = 0;
 #pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : count)
