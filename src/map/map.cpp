@@ -26,23 +26,27 @@ int threadCount(const Config& cfg) {
   return cfg.threads > 0 ? cfg.threads : std::max(1, omp_get_max_threads());
 }
 
-/// World points of a depth frame, one per pixel (NaN where the depth is invalid).
-std::vector<Eigen::Vector3f> backProject(const DepthFrame& f, const Pose& camera_to_world) {
+/// World points of a depth frame into `out`, one per pixel (NaN where the depth is invalid);
+/// rows in parallel. `out` is overwritten (reuse it across frames: no allocation per frame).
+void backProject(const DepthFrame& f, const Pose& camera_to_world, int threads,
+                 std::vector<Eigen::Vector3f>& out) {
   const Intrinsics& k = f.intrinsics;
   const Eigen::Matrix3f R = camera_to_world.linear().cast<float>();
   const Eigen::Vector3f t = camera_to_world.translation().cast<float>();
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  std::vector<Eigen::Vector3f> out(f.depth.size(), Eigen::Vector3f::Constant(nan));
+  const Eigen::Vector3f nan = Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN());
+  out.resize(f.depth.size());
   const float ifx = static_cast<float>(1.0 / k.fx), ify = static_cast<float>(1.0 / k.fy);
   const float cx = static_cast<float>(k.cx), cy = static_cast<float>(k.cy);
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static)
   for (int v = 0; v < k.height; ++v)
     for (int u = 0; u < k.width; ++u) {
       const std::size_t i = static_cast<std::size_t>(v) * k.width + u;
       const float d = f.depth[i];
-      if (!DepthFrame::isValidDepth(d)) continue;
-      out[i] = R * Eigen::Vector3f((u - cx) * d * ifx, (v - cy) * d * ify, d) + t;
+      out[i] =
+          DepthFrame::isValidDepth(d)
+              ? Eigen::Vector3f(R * Eigen::Vector3f((u - cx) * d * ifx, (v - cy) * d * ify, d) + t)
+              : nan;
     }
-  return out;
 }
 
 /// Every `stride`-th point of every `stride`-th row of a row-major width x height grid.
@@ -251,7 +255,9 @@ IntegrateStats Map::fuseDepth(const DepthFrameAnalysis& analysis, const Pose& ca
 IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_world) {
   const auto t0 = Clock::now();
   checkFrame(frame);
-  const std::vector<Eigen::Vector3f> pts = backProject(frame, camera_to_world);
+  thread_local std::vector<Eigen::Vector3f> points_scratch;
+  std::vector<Eigen::Vector3f>& pts = points_scratch;  // the caller's (see keepPoints)
+  backProject(frame, camera_to_world, threadCount(cfg_), pts);
   const auto track = [&] {
     if (cfg_.track_pixel_stride <= 1) {
       tracker_.integrate(pts, camera_to_world.translation());  // every pixel: no copy
