@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "planesdf/config.hpp"
+#include "planesdf/memory.hpp"
 #include "planesdf/types.hpp"
 
 namespace planesdf {
@@ -130,11 +131,46 @@ class BlockHashMap {
  private:
   void rehash(std::size_t capacity);
 
-  std::vector<std::uint64_t> keys_;  // kEmpty marks a free slot
-  std::vector<std::uint32_t> values_;
+  // Large tables are mapped whole (detail::LargeAllocator): a growing table's rehash faults in
+  // its new arrays one huge page at a time.
+  std::vector<std::uint64_t, detail::LargeAllocator<std::uint64_t>> keys_;  // kEmpty: free slot
+  std::vector<std::uint32_t, detail::LargeAllocator<std::uint32_t>> values_;
   std::size_t size_ = 0;
   std::size_t mask_ = 0;
 };
+
+namespace detail {
+/// Storage of a volume's blocks in slabs of consecutive blocks whose addresses never change. A
+/// new slab holds a quarter of the blocks stored so far (at least 16, at most one huge page,
+/// 509 blocks): a growing volume calls the allocator once per slab instead of once per block,
+/// its large slabs are faulted in one huge page at a time (detail::LargeAllocator), and the
+/// unused tail is at most a quarter of the blocks. Not copyable (TsdfVolume copies blocks).
+class BlockSlabs {
+ public:
+  BlockSlabs() = default;
+  BlockSlabs(const BlockSlabs&) = delete;
+  BlockSlabs& operator=(const BlockSlabs&) = delete;
+  BlockSlabs(BlockSlabs&& other) noexcept;
+  BlockSlabs& operator=(BlockSlabs&& other) noexcept;
+  ~BlockSlabs();
+  /// A new block, all voxels unobserved (a value-initialised TsdfBlock).
+  TsdfBlock* create();
+  /// Frees every slab.
+  void clear() noexcept;
+  /// Bytes the slabs hold (their whole capacity).
+  std::size_t bytes() const { return bytes_; }
+
+ private:
+  struct Slab {
+    TsdfBlock* blocks;
+    std::size_t capacity;
+  };
+  std::vector<Slab> slabs_;
+  std::size_t used_ = 0;   ///< blocks created in the last slab
+  std::size_t total_ = 0;  ///< blocks created in all slabs
+  std::size_t bytes_ = 0;
+};
+}  // namespace detail
 
 /// A sample of the TSDF at a continuous point.
 struct TsdfSample {
@@ -176,11 +212,11 @@ class TsdfVolume {
   /// The block at `b`, or nullptr when it is not allocated.
   const TsdfBlock* findBlock(const Eigen::Vector3i& b) const {
     const std::ptrdiff_t slot = blockSlot(b);
-    return slot < 0 ? nullptr : blocks_[static_cast<std::size_t>(slot)].get();
+    return slot < 0 ? nullptr : blocks_[static_cast<std::size_t>(slot)];
   }
   TsdfBlock* findBlock(const Eigen::Vector3i& b) {
     const std::ptrdiff_t slot = blockSlot(b);
-    return slot < 0 ? nullptr : blocks_[static_cast<std::size_t>(slot)].get();
+    return slot < 0 ? nullptr : blocks_[static_cast<std::size_t>(slot)];
   }
   /// The block at `b`, allocated (all voxels unobserved) when missing; `created` tells which.
   /// Throws planesdf::Error when `b` is outside blockIndexInRange().
@@ -267,7 +303,8 @@ class TsdfVolume {
  private:
   double voxel_size_;
   double truncation_;
-  std::vector<std::unique_ptr<TsdfBlock>> blocks_;
+  std::vector<TsdfBlock*> blocks_;  ///< by slot, into slabs_
+  detail::BlockSlabs slabs_;
   BlockHashMap map_;
   Eigen::Vector3i lo_ = Eigen::Vector3i::Zero();
   Eigen::Vector3i hi_ = Eigen::Vector3i::Constant(-1);

@@ -214,7 +214,14 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
   // Project once into flat arrays (the min/max and cell passes then vectorise).
   const float* xyz = xyzData(points);
   const std::size_t m = members.size();
-  std::vector<float> us(m), vs(m);
+  // Per-thread scratch reused across calls (a frame's inliers are hundreds of thousands of
+  // points: fresh arrays every frame cost page faults). Every entry used is rewritten.
+  thread_local std::vector<float> us_scratch, vs_scratch;
+  thread_local std::vector<int> cell_scratch, grid_scratch;
+  std::vector<float>& us = us_scratch;
+  std::vector<float>& vs = vs_scratch;
+  us.resize(m);
+  vs.resize(m);
   for (std::size_t i = 0; i < m; ++i) {
     const float* p = xyz + 3 * members[i];
     us[i] = ux * p[0] + uy * p[1] + uz * p[2];
@@ -252,14 +259,15 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
   const int nu = static_cast<int>((u_hi - u_lo) / cell) + 1;
   const int nv = static_cast<int>((v_hi - v_lo) / cell) + 1;
   const auto inv = static_cast<float>(1.0 / cell);
-  std::vector<int> cell_of(m);
+  std::vector<int>& cell_of = cell_scratch;
+  cell_of.resize(m);
   for (std::size_t i = 0; i < m; ++i) {
     const int cu = std::min(nu - 1, static_cast<int>((us[i] - u_lo) * inv));
     const int cv = std::min(nv - 1, static_cast<int>((vs[i] - v_lo) * inv));
     cell_of[i] = cv * nu + cu;
   }
-  std::vector<int> grid(static_cast<std::size_t>(nu) * nv,
-                        -1);  // -1 empty, -2 occupied, else label
+  std::vector<int>& grid = grid_scratch;  // -1 empty, -2 occupied, else label
+  grid.assign(static_cast<std::size_t>(nu) * nv, -1);
   for (int c : cell_of) grid[c] = -2;
   int labels = 0;
   std::vector<std::size_t> sizes;

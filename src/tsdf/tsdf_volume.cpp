@@ -2,7 +2,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <new>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "planesdf/error.hpp"
@@ -13,8 +15,9 @@ namespace planesdf {
 namespace {
 
 constexpr std::uint64_t kEmptyKey = detail::kEmptyBlockKey;
-// Estimated bookkeeping the allocator adds to each block allocation (glibc: 16 bytes).
-constexpr std::size_t kAllocatorOverhead = 16;
+// Slab sizes of BlockSlabs: at least this many blocks, at most one huge page.
+constexpr std::size_t kMinSlabBlocks = 16;
+constexpr std::size_t kMaxSlabBlocks = detail::kHugePageBytes / sizeof(TsdfBlock);
 
 inline int floorToInt(double x) {
   const int i = static_cast<int>(x);
@@ -69,8 +72,8 @@ std::size_t BlockHashMap::memoryBytes() const {
 }
 
 void BlockHashMap::rehash(std::size_t capacity) {
-  const std::vector<std::uint64_t> old_keys = std::move(keys_);
-  const std::vector<std::uint32_t> old_values = std::move(values_);
+  const auto old_keys = std::move(keys_);
+  const auto old_values = std::move(values_);
   keys_.assign(capacity, kEmptyKey);
   values_.assign(capacity, kNotFound);
   mask_ = capacity - 1;
@@ -78,6 +81,66 @@ void BlockHashMap::rehash(std::size_t capacity) {
   for (std::size_t i = 0; i < old_keys.size(); ++i)
     if (old_keys[i] != kEmptyKey) insert(old_keys[i], old_values[i]);
 }
+
+// ---- BlockSlabs ------------------------------------------------------------------------------
+
+namespace detail {
+
+BlockSlabs::BlockSlabs(BlockSlabs&& other) noexcept
+    : slabs_(std::move(other.slabs_)),
+      used_(other.used_),
+      total_(other.total_),
+      bytes_(other.bytes_) {
+  other.slabs_.clear();
+  other.used_ = other.total_ = other.bytes_ = 0;
+}
+
+BlockSlabs& BlockSlabs::operator=(BlockSlabs&& other) noexcept {
+  if (this != &other) {
+    clear();
+    slabs_ = std::move(other.slabs_);
+    used_ = other.used_;
+    total_ = other.total_;
+    bytes_ = other.bytes_;
+    other.slabs_.clear();
+    other.used_ = other.total_ = other.bytes_ = 0;
+  }
+  return *this;
+}
+
+BlockSlabs::~BlockSlabs() {
+  clear();
+}
+
+TsdfBlock* BlockSlabs::create() {
+  static_assert(std::is_trivially_destructible_v<TsdfBlock>, "slabs never run destructors");
+  if (slabs_.empty() || used_ == slabs_.back().capacity) {
+    const std::size_t capacity = std::clamp(total_ / 4, kMinSlabBlocks, kMaxSlabBlocks);
+    // A full-size slab asks for the whole huge page (its tail is a few bytes).
+    const std::size_t bytes =
+        capacity == kMaxSlabBlocks ? kHugePageBytes : capacity * sizeof(TsdfBlock);
+    if (slabs_.size() == slabs_.capacity())  // cannot throw after the allocation below
+      slabs_.reserve(std::max<std::size_t>(8, 2 * slabs_.capacity()));
+    auto* memory = static_cast<TsdfBlock*>(allocateLarge(bytes));
+    slabs_.push_back({memory, capacity});
+    bytes_ += bytes;
+    used_ = 0;
+  }
+  TsdfBlock* b = new (slabs_.back().blocks + used_) TsdfBlock();
+  ++used_;
+  ++total_;
+  return b;
+}
+
+void BlockSlabs::clear() noexcept {
+  for (const Slab& s : slabs_)
+    freeLarge(s.blocks,
+              s.capacity == kMaxSlabBlocks ? kHugePageBytes : s.capacity * sizeof(TsdfBlock));
+  slabs_.clear();
+  used_ = total_ = bytes_ = 0;
+}
+
+}  // namespace detail
 
 // ---- TsdfVolume -----------------------------------------------------------------------------
 
@@ -101,7 +164,11 @@ TsdfVolume::TsdfVolume(const TsdfVolume& other)
       hi_(other.hi_),
       revision_(other.revision_) {
   blocks_.reserve(other.blocks_.size());
-  for (const auto& b : other.blocks_) blocks_.push_back(std::make_unique<TsdfBlock>(*b));
+  for (const TsdfBlock* b : other.blocks_) {
+    TsdfBlock* copy = slabs_.create();
+    *copy = *b;
+    blocks_.push_back(copy);
+  }
 }
 
 TsdfVolume& TsdfVolume::operator=(const TsdfVolume& other) {
@@ -117,8 +184,8 @@ std::size_t TsdfVolume::numObservedVoxels() const {
 }
 
 std::size_t TsdfVolume::memoryBytes() const {
-  return sizeof(*this) + blocks_.capacity() * sizeof(blocks_[0]) +
-         blocks_.size() * (sizeof(TsdfBlock) + kAllocatorOverhead) + map_.memoryBytes();
+  return sizeof(*this) + blocks_.capacity() * sizeof(blocks_[0]) + slabs_.bytes() +
+         map_.memoryBytes();
 }
 
 TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
@@ -126,13 +193,18 @@ TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
     throw Error("", "tsdf volume: block index (" + std::to_string(b.x()) + ", " +
                         std::to_string(b.y()) + ", " + std::to_string(b.z()) +
                         ") is out of the representable range");
-  const auto slot = static_cast<std::uint32_t>(blocks_.size());
-  const auto [found, inserted] = map_.insert(packBlockKey(b), slot);
-  if (created) *created = inserted;
-  if (!inserted) return *blocks_[found];
-  auto block = std::make_unique<TsdfBlock>();
+  const std::uint64_t key = packBlockKey(b);
+  const std::uint32_t found = map_.find(key);
+  if (created) *created = found == BlockHashMap::kNotFound;
+  if (found != BlockHashMap::kNotFound) return *blocks_[found];
+  // Everything that can throw happens before the block is entered anywhere.
+  if (blocks_.size() == blocks_.capacity())
+    blocks_.reserve(std::max<std::size_t>(64, 2 * blocks_.capacity()));
+  map_.reserve(map_.size() + 1);
+  TsdfBlock* block = slabs_.create();
   block->index = b;
-  blocks_.push_back(std::move(block));
+  map_.insert(key, static_cast<std::uint32_t>(blocks_.size()));
+  blocks_.push_back(block);
   if (blocks_.size() == 1) {
     lo_ = hi_ = b;
   } else {
@@ -167,6 +239,7 @@ void TsdfVolume::clear() {
   if (blocks_.empty()) return;
   blocks_.clear();
   blocks_.shrink_to_fit();
+  slabs_.clear();
   map_ = BlockHashMap();
   lo_.setZero();
   hi_.setConstant(-1);
