@@ -56,6 +56,34 @@ struct IntegrateStats {
   double milliseconds = 0.0;     ///< wall time of the call
 };
 
+namespace detail {
+/// A set of grid cells keyed as detail::cellKeyOf packs them (21 bits per axis): bricks of 8^3
+/// cells in a hash map, each a 512-bit mask. Neighbouring cells share a brick, so a frame's
+/// points look up a small table (and mostly the brick of the point before) instead of one large
+/// table entry per cell.
+class CellBitSet {
+ public:
+  /// Inserts cell `key`; true when the set did not hold it.
+  bool insert(std::uint64_t key);
+  /// Asks the cache for the table slot of the brick of cell `key`.
+  void prefetch(std::uint64_t key) const { bricks_.prefetch(brickOf(key)); }
+  /// Number of cells in the set.
+  std::size_t size() const { return cells_; }
+  /// The brick key of cell `key` (also what decides which of a map's sets holds it).
+  static std::uint64_t brickOf(std::uint64_t key) {
+    constexpr std::uint64_t m = (std::uint64_t{1} << 21) - 1;
+    return ((key & m) >> 3) | (((key >> 21) & m) >> 3) << 21 | (((key >> 42) & m) >> 3) << 42;
+  }
+
+ private:
+  BlockHashMap bricks_;  ///< brick key -> index into masks_
+  std::vector<std::array<std::uint64_t, 8>, LargeAllocator<std::array<std::uint64_t, 8>>> masks_;
+  std::size_t cells_ = 0;
+  std::uint64_t last_brick_ = detail::kEmptyBlockKey;  ///< the brick of the previous insert ...
+  std::uint32_t last_mask_ = 0;                        ///< ... and its mask
+};
+}  // namespace detail
+
 class Map {
  public:
   /// An empty map. Throws planesdf::Error("config", ...) on invalid parameters.
@@ -119,9 +147,9 @@ class Map {
   PlaneTracker tracker_;
   std::vector<PlaneSdf> planes_;
   std::vector<Eigen::Vector3f> points_;
-  /// Cells already holding a kept point (used as sets), split in two by key so that two threads
-  /// can de-duplicate a frame's points side by side.
-  std::array<BlockHashMap, 2> point_cells_;
+  /// Cells already holding a kept point, split in two sets by brick so that two threads can
+  /// de-duplicate a frame's points side by side.
+  std::array<detail::CellBitSet, 2> point_cells_;
   std::uint64_t frames_ = 0;
 };
 

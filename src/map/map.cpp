@@ -149,6 +149,28 @@ void addResult(IntegrateStats& stats, int plane_id, const IntegrationResult& r) 
 
 }  // namespace
 
+bool detail::CellBitSet::insert(std::uint64_t key) {
+  const std::uint64_t brick = brickOf(key);
+  if (brick != last_brick_) {
+    std::uint32_t slot = bricks_.find(brick);
+    if (slot == BlockHashMap::kNotFound) {
+      masks_.push_back({});  // first: a failed insert below leaves only an unused mask
+      slot = static_cast<std::uint32_t>(masks_.size() - 1);
+      bricks_.insert(brick, slot);
+    }
+    last_brick_ = brick;
+    last_mask_ = slot;
+  }
+  const unsigned bit =
+      static_cast<unsigned>((key & 7) | ((key >> 21) & 7) << 3 | ((key >> 42) & 7) << 6);
+  std::uint64_t& word = masks_[last_mask_][bit >> 6];
+  const std::uint64_t b = std::uint64_t{1} << (bit & 63);
+  if (word & b) return false;
+  word |= b;
+  ++cells_;
+  return true;
+}
+
 Map::Map(const Config& cfg) : cfg_(cfg), tracker_(cfg) {
   validateConfig(cfg_);
 }
@@ -248,7 +270,7 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
         const std::size_t s = detail::pointCellSet(key);
         if (s % step != part || key == last[s]) continue;
         last[s] = key;
-        if (point_cells_[s].insertKey(key)) accepted[l][j] = 1;
+        if (point_cells_[s].insert(key)) accepted[l][j] = 1;
       }
     }
   }

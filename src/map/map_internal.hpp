@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <cstdint>
 
+#include "planesdf/map.hpp"
 #include "planesdf/tsdf.hpp"
 
 namespace planesdf::detail {
@@ -20,11 +21,11 @@ inline std::uint64_t cellKeyOf(const Eigen::Vector3f& p, double cell) {
   return q(p.x()) | (q(p.y()) << 21) | (q(p.z()) << 42);
 }
 
-/// Which of the map's kPointCellSets sets holds cell `key` (a high bit of the mixed key, so that
-/// each set's slots stay evenly used).
+/// Which of the map's kPointCellSets sets holds cell `key`: a high bit of its mixed brick key
+/// (every cell of a brick in the same set; the sets' tables stay evenly used).
 constexpr std::size_t kPointCellSets = 2;
 inline std::size_t pointCellSet(std::uint64_t key) {
-  return static_cast<std::size_t>(mixBlockKey(key) >> 47) % kPointCellSets;
+  return static_cast<std::size_t>(mixBlockKey(CellBitSet::brickOf(key)) >> 47) % kPointCellSets;
 }
 
 }  // namespace planesdf::detail

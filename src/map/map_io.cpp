@@ -230,7 +230,7 @@ Map Map::deserialize(const std::string& bytes, const std::string& name) {
   if (m.cfg_.point_cell > 0.0)
     for (const auto& p : m.points_) {
       const std::uint64_t key = detail::cellKeyOf(p, m.cfg_.point_cell);
-      m.point_cells_[detail::pointCellSet(key)].insert(key, 0);
+      m.point_cells_[detail::pointCellSet(key)].insert(key);
     }
   return m;
 }

@@ -5,6 +5,8 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
+#include <set>
 
 #include "analytic_scene.hpp"
 #include "planesdf/error.hpp"
@@ -258,6 +260,37 @@ TEST(Map, BadFramesAreErrors) {
   Config bad;
   bad.voxel_size = -1;
   EXPECT_THROW(Map{bad}, Error);
+}
+
+TEST(CellBitSet, HoldsExactlyTheInsertedCells) {
+  // Random cells around the key origin (2^20 per axis), clustered so that bricks are shared
+  // and also spread over distant bricks; checked against a plain set.
+  std::mt19937_64 rng(5);
+  const auto key = [](std::uint64_t x, std::uint64_t y, std::uint64_t z) {
+    return x | (y << 21) | (z << 42);
+  };
+  detail::CellBitSet set;
+  std::set<std::uint64_t> truth;
+  std::uniform_int_distribution<std::uint64_t> near(0, 40), far(0, (1u << 21) - 1);
+  for (int i = 0; i < 200000; ++i) {
+    const bool spread = i % 10 == 0;
+    const std::uint64_t base = 1u << 20;
+    const std::uint64_t k = spread ? key(far(rng), far(rng), far(rng))
+                                   : key(base + near(rng), base - near(rng), base + near(rng));
+    EXPECT_EQ(set.insert(k), truth.insert(k).second) << i;
+  }
+  EXPECT_EQ(set.size(), truth.size());
+  EXPECT_GT(truth.size(), 50000u);
+  for (const std::uint64_t k : truth) ASSERT_FALSE(set.insert(k));
+  // Cells of one brick share its key; the next cell along each axis starts another brick.
+  EXPECT_EQ(detail::CellBitSet::brickOf(key(8, 16, 24)),
+            detail::CellBitSet::brickOf(key(15, 23, 31)));
+  EXPECT_NE(detail::CellBitSet::brickOf(key(15, 16, 24)),
+            detail::CellBitSet::brickOf(key(16, 16, 24)));
+  EXPECT_NE(detail::CellBitSet::brickOf(key(8, 23, 24)),
+            detail::CellBitSet::brickOf(key(8, 24, 24)));
+  EXPECT_NE(detail::CellBitSet::brickOf(key(8, 16, 31)),
+            detail::CellBitSet::brickOf(key(8, 16, 32)));
 }
 
 }  // namespace
