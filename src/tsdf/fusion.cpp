@@ -293,6 +293,14 @@ class SegmentBlocks {
     return (lo.array() >= known_box_.first.array()).all() &&
            (hi.array() <= known_box_.second.array()).all();
   }
+  /// True when every block of the box [lo, hi] is known (looked up; remembered as the known
+  /// box when so). A box that failed the last check is not looked up again.
+  bool knownBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
+    if (lo == failed_box_.first && hi == failed_box_.second) return false;
+    if (!collector_.allKnown(lo, hi)) return false;
+    known_box_ = {lo, hi};
+    return true;
+  }
   /// Checks the box [lo, hi] (after its segments were added) and remembers it when every block
   /// in it is known; a box found to hold an unknown block is not checked again while it repeats.
   void noteBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
@@ -810,7 +818,7 @@ __attribute__((target("avx2"))) int allocateRowAvx2(const AllocRow& r, SegmentBl
         box_hi[i] = std::max({box_hi[i], ia[i][l], ib[i][l]});
       }
     }
-    if (segments.insideKnownBox(box_lo, box_hi)) continue;
+    if (segments.insideKnownBox(box_lo, box_hi) || segments.knownBox(box_lo, box_hi)) continue;
     for (int l = 0; l < 8; ++l)
       if ((seg >> l) & 1)
         segments.add(Eigen::Vector3f(A[0][l], A[1][l], A[2][l]),
