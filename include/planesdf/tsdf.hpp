@@ -163,7 +163,8 @@ class BlockSlabs {
  private:
   struct Slab {
     TsdfBlock* blocks;
-    std::size_t capacity;
+    std::size_t capacity;  ///< blocks
+    std::size_t bytes;     ///< requested from allocateLarge
   };
   std::vector<Slab> slabs_;
   std::size_t used_ = 0;   ///< blocks created in the last slab

@@ -298,7 +298,7 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   const auto t0 = Clock::now();
   checkFrame(frame);
   thread_local std::vector<Eigen::Vector3f> points_scratch;
-  std::vector<Eigen::Vector3f>& pts = points_scratch;  // the caller's (see keepPoints)
+  std::vector<Eigen::Vector3f>& pts = points_scratch;  // this thread's buffer, reused per frame
   backProject(frame, camera_to_world, threadCount(cfg_), pts);
   const auto track = [&] {
     if (cfg_.track_pixel_stride <= 1) {

@@ -287,22 +287,21 @@ class SegmentBlocks {
     else
       failed_ = {a, b};
   }
-  /// True when every block of the box [lo, hi] is known to be allocated or collected (it lies
-  /// in the last box found so). Segments within such a box cannot add a block.
-  bool insideKnownBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) const {
-    return (lo.array() >= known_box_.first.array()).all() &&
-           (hi.array() <= known_box_.second.array()).all();
-  }
-  /// True when every block of the box [lo, hi] is known (looked up; remembered as the known
-  /// box when so). A box that failed the last check is not looked up again.
-  bool knownBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
-    if (lo == failed_box_.first && hi == failed_box_.second) return false;
-    if (!collector_.allKnown(lo, hi)) return false;
+  /// True when every block of the box [lo, hi] is known to be allocated or collected: it lies
+  /// in the last box found so, or a lookup finds it so (it then becomes that box). Segments
+  /// within such a box cannot add a block. A box that failed noteBox is not looked up again.
+  bool boxKnown(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
+    if ((lo.array() >= known_box_.first.array()).all() &&
+        (hi.array() <= known_box_.second.array()).all())
+      return true;
+    if ((lo == failed_box_.first && hi == failed_box_.second) || !collector_.allKnown(lo, hi))
+      return false;
     known_box_ = {lo, hi};
     return true;
   }
-  /// Checks the box [lo, hi] (after its segments were added) and remembers it when every block
-  /// in it is known; a box found to hold an unknown block is not checked again while it repeats.
+  /// Checks the box [lo, hi] again after its segments were added (they may have collected its
+  /// unknown blocks) and remembers it as known, or as failed so that it is not looked up again
+  /// while it repeats.
   void noteBox(const Eigen::Vector3i& lo, const Eigen::Vector3i& hi) {
     if (lo == failed_box_.first && hi == failed_box_.second) return;
     if (collector_.allKnown(lo, hi))
@@ -818,7 +817,7 @@ __attribute__((target("avx2"))) int allocateRowAvx2(const AllocRow& r, SegmentBl
         box_hi[i] = std::max({box_hi[i], ia[i][l], ib[i][l]});
       }
     }
-    if (segments.insideKnownBox(box_lo, box_hi) || segments.knownBox(box_lo, box_hi)) continue;
+    if (segments.boxKnown(box_lo, box_hi)) continue;
     for (int l = 0; l < 8; ++l)
       if ((seg >> l) & 1)
         segments.add(Eigen::Vector3f(A[0][l], A[1][l], A[2][l]),

@@ -87,23 +87,18 @@ void BlockHashMap::rehash(std::size_t capacity) {
 namespace detail {
 
 BlockSlabs::BlockSlabs(BlockSlabs&& other) noexcept
-    : slabs_(std::move(other.slabs_)),
-      used_(other.used_),
-      total_(other.total_),
-      bytes_(other.bytes_) {
-  other.slabs_.clear();
-  other.used_ = other.total_ = other.bytes_ = 0;
-}
+    : slabs_(std::exchange(other.slabs_, {})),
+      used_(std::exchange(other.used_, 0)),
+      total_(std::exchange(other.total_, 0)),
+      bytes_(std::exchange(other.bytes_, 0)) {}
 
 BlockSlabs& BlockSlabs::operator=(BlockSlabs&& other) noexcept {
   if (this != &other) {
     clear();
-    slabs_ = std::move(other.slabs_);
-    used_ = other.used_;
-    total_ = other.total_;
-    bytes_ = other.bytes_;
-    other.slabs_.clear();
-    other.used_ = other.total_ = other.bytes_ = 0;
+    slabs_ = std::exchange(other.slabs_, {});
+    used_ = std::exchange(other.used_, 0);
+    total_ = std::exchange(other.total_, 0);
+    bytes_ = std::exchange(other.bytes_, 0);
   }
   return *this;
 }
@@ -122,7 +117,7 @@ TsdfBlock* BlockSlabs::create() {
     if (slabs_.size() == slabs_.capacity())  // cannot throw after the allocation below
       slabs_.reserve(std::max<std::size_t>(8, 2 * slabs_.capacity()));
     auto* memory = static_cast<TsdfBlock*>(allocateLarge(bytes));
-    slabs_.push_back({memory, capacity});
+    slabs_.push_back({memory, capacity, bytes});
     bytes_ += bytes;
     used_ = 0;
   }
@@ -133,9 +128,7 @@ TsdfBlock* BlockSlabs::create() {
 }
 
 void BlockSlabs::clear() noexcept {
-  for (const Slab& s : slabs_)
-    freeLarge(s.blocks,
-              s.capacity == kMaxSlabBlocks ? kHugePageBytes : s.capacity * sizeof(TsdfBlock));
+  for (const Slab& s : slabs_) freeLarge(s.blocks, s.bytes);
   slabs_.clear();
   used_ = total_ = bytes_ = 0;
 }
