@@ -8,6 +8,7 @@
 #include <utility>
 #include <vector>
 
+#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 
 namespace planesdf {
@@ -53,8 +54,8 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
         unk.set(x, y);
         continue;
       }
-      int x0 = static_cast<int>(std::floor(fx));
-      int y0 = static_cast<int>(std::floor(fy));
+      int x0 = detail::floorToInt(fx);
+      int y0 = detail::floorToInt(fy);
       // A point exactly on a cell centre is equally near both neighbour columns / rows: take
       // the pair inside the grid (the last column / row stays comparable with identity T).
       if (x0 + 1 >= tgt.width && fx - x0 < kCentreTieEps) --x0;

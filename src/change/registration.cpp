@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 
 namespace planesdf {
@@ -125,6 +126,8 @@ std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, con
 
 namespace {
 
+/// A cell index no grid reaches (scoreCandidate's far or non-finite coordinates).
+constexpr int kFarCell = -(1 << 30);
 /// Smallest improvement refineInPlane accepts (see there).
 constexpr int kMinGainCells = 20;
 /// Samples of the coarse search of refineInPlane.
@@ -147,6 +150,7 @@ struct Sample {
 struct Groups {
   std::vector<int> cap;  ///< per group; background: its sample count (no cap)
   mutable std::vector<int> count;
+  mutable std::vector<int> touched;  ///< groups whose count is not 0 (reset per candidate)
 };
 
 /// The groups of `samples` (ids below n_groups): an object's mismatches count up to half its
@@ -183,11 +187,14 @@ Score scoreCandidate(const std::vector<Sample>& samples, const Groups& groups, c
   const double cap = 4.0 * delta_h;
   Score sc;
   double sum = 0.0;
-  std::fill(groups.count.begin(), groups.count.end(), 0);
+  // Maps hold thousands of small objects: only the counts the last candidate raised are reset.
+  for (const int g : groups.touched) groups.count[static_cast<std::size_t>(g)] = 0;
+  groups.touched.clear();
   // A mismatch of sample `smp`: false when the cost passed max_cost (stop).
   const auto mismatch = [&](const Sample& smp) {
     ++sc.mismatches;
     const auto g = static_cast<std::size_t>(smp.group);
+    if (groups.count[g] == 0) groups.touched.push_back(smp.group);
     if (++groups.count[g] <= groups.cap[g]) ++sc.cost;
     return sc.cost <= max_cost;
   };
@@ -195,10 +202,11 @@ Score scoreCandidate(const std::vector<Sample>& samples, const Groups& groups, c
     const Eigen::Vector2d d = smp.uv - pivot;
     const double u = pivot.x() + c * d.x() - s * d.y() + shift.x();
     const double v = pivot.y() + s * d.x() + c * d.y() + shift.y();
-    const double fx = std::floor(u * inv) - tgt.i0;
-    const double fy = std::floor(v * inv) - tgt.j0;
-    const bool inside = fx >= 0.0 && fy >= 0.0 && fx < tgt.width && fy < tgt.height;
-    const int x = inside ? static_cast<int>(fx) : 0, y = inside ? static_cast<int>(fy) : 0;
+    // Cell (x, y) when inside the grid (far or non-finite coordinates are outside).
+    int x = detail::floorToIntOr(u * inv, kFarCell) - tgt.i0;
+    int y = detail::floorToIntOr(v * inv, kFarCell) - tgt.j0;
+    const bool inside = tgt.inBounds(x, y);
+    if (!inside) x = y = 0;
     const float ht = inside ? tgt.at(x, y) : kUnobserved;
     if (ht == kUnobserved) {
       // The samples are the cells compared at the initial T. One that mismatched there and that

@@ -1,0 +1,21 @@
+// Internal numeric helpers shared by the stages (not installed).
+#pragma once
+
+#include <cmath>
+
+namespace planesdf::detail {
+
+/// floor(x) as an int, without a libm call (the x86-64 baseline has no rounding instruction):
+/// truncate, minus one where that rounded up. The same value as static_cast<int>(std::floor(x))
+/// for |x| < 2^31; callers check the range (see floorToIntOr).
+inline int floorToInt(double x) {
+  const int i = static_cast<int>(x);
+  return i - (x < static_cast<double>(i) ? 1 : 0);
+}
+
+/// floorToInt(x) when |x| < 1e9, else `fallback` (also for NaN).
+inline int floorToIntOr(double x, int fallback) {
+  return std::abs(x) < 1e9 ? floorToInt(x) : fallback;
+}
+
+}  // namespace planesdf::detail
