@@ -157,18 +157,35 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
 
 // --- building blocks, shared with the incremental ChangeDetector -------------------------------
 
+/// A map's points (Map::points()) that stand in a plane's band, bucketed by the cells of its
+/// height map: those with height from h_obj / 2 to the highest cell + one voxel (1 mm of slack),
+/// cell by cell, each cell's in input order. The change outputs' point loops read only the
+/// cells they need instead of every point of the map.
+struct CellPoints {
+  std::vector<std::uint32_t> start;  ///< numCells() + 1 offsets into `index`; empty: not built
+  std::vector<std::uint32_t> index;  ///< indices into the points
+  std::size_t num_points = 0;        ///< size of the point array it was built from
+  /// True when built from a point array of `n` points.
+  bool builtFor(std::size_t n) const { return !start.empty() && num_points == n; }
+};
+/// The points of `points` (world) in `plane`'s band, bucketed by the cells of `heights`.
+CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
+                            const std::vector<Eigen::Vector3f>& points, const Config& cfg);
+
 /// The 2D maps of one plane (computed once per plane and volume revision).
 struct PlaneMaps {
   HeightMap heights;
   ObjectMap objects;
   std::uint64_t revision = 0;  ///< TsdfVolume::revision() they were computed at
+  CellPoints points;           ///< the map's points by cell, when computePlaneMaps had them
 };
 /// The height and object maps of `plane`, where cells whose surface lies on another,
 /// non-parallel plane of the same map (`map_planes`: a wall rising through a table's band, a
 /// table crossing a wall's band) are unknown: they are structure, which that plane's own PlaneSDF
-/// compares.
+/// compares. With `points` (the map's points()), also their buckets (see CellPoints); without,
+/// comparePlanePair buckets them itself.
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
-                           const Config& cfg);
+                           const Config& cfg, const std::vector<Eigen::Vector3f>* points = nullptr);
 
 /// A blob of one plane pair that the 3D validation did not reject, as one side of an event.
 struct CandidateChange {

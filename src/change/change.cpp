@@ -405,8 +405,33 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
   return m;
 }
 
+CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
+                            const std::vector<Eigen::Vector3f>& points, const Config& cfg) {
+  CellPoints cp;
+  cp.num_points = points.size();
+  cp.start.assign(heights.numCells() + 1, 0);
+  if (heights.empty()) return cp;
+  const BandFilter in_band(plane, 0.5 * cfg.h_obj, maxHeight(heights) + heights.cell_size);
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> hits;  // (point, cell), input order
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    if (!in_band(points[i])) continue;
+    const Eigen::Vector3d l = plane.toLocal(points[i].cast<double>());
+    const Eigen::Vector2i c = heights.cellOf(l.head<2>());
+    if (heights.inBounds(c.x(), c.y()))
+      hits.emplace_back(static_cast<std::uint32_t>(i),
+                        static_cast<std::uint32_t>(heights.index(c.x(), c.y())));
+  }
+  // Counting sort by cell (stable: input order within a cell).
+  for (const auto& h : hits) ++cp.start[h.second + 1];
+  for (std::size_t c = 1; c < cp.start.size(); ++c) cp.start[c] += cp.start[c - 1];
+  cp.index.resize(hits.size());
+  std::vector<std::uint32_t> next(cp.start.begin(), cp.start.end() - 1);
+  for (const auto& h : hits) cp.index[next[h.second]++] = h.first;
+  return cp;
+}
+
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
-                           const Config& cfg) {
+                           const Config& cfg, const std::vector<Eigen::Vector3f>* points) {
   PlaneMaps m;
   m.heights = computeHeightMap(plane.volume, cfg);
   // Surfaces of the other, non-parallel planes of the map (a wall in the table's band, the
@@ -452,6 +477,7 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
       }
   m.objects = computeObjectMap(m.heights, cfg);
   m.revision = plane.volume.revision();
+  if (points != nullptr) m.points = bucketBandPoints(plane.plane, m.heights, *points, cfg);
   return m;
 }
 
@@ -480,23 +506,34 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const double trunc = src.volume.truncation();
   const double lo_flat = 0.5 * cfg.h_obj;
 
+  // Both maps' band points by cell: from the maps when they have them, else bucketed here once a
+  // candidate needs them.
+  CellPoints own_source_cells, own_target_cells;
+  const auto cellsOf = [&](const PlaneMaps& maps, const PlaneSdf& plane, const HeightMap& hm,
+                           const std::vector<Eigen::Vector3f>& points,
+                           CellPoints& own) -> const CellPoints& {
+    if (maps.points.builtFor(points.size())) return maps.points;
+    if (!own.builtFor(points.size())) own = bucketBandPoints(plane.plane, hm, points, cfg);
+    return own;
+  };
   // Per target object label, the indices of the target points standing on it (on its cells, from
-  // lo_flat to the cell's height + one voxel), computed once, when a candidate first needs them.
+  // lo_flat to the cell's height + one voxel), computed once, when a candidate first needs them
+  // (each label's in cell order; the readers sort what they pick).
   std::map<int, std::vector<std::uint32_t>> target_object_points;
   bool target_object_points_done = false;
   const auto target_objects_points = [&]() -> const std::map<int, std::vector<std::uint32_t>>& {
     if (target_object_points_done) return target_object_points;
     target_object_points_done = true;
-    const BandFilter in_band(tgt.plane, lo_flat, maxHeight(ht) + vs);
-    for (std::size_t i = 0; i < target_points.size(); ++i) {
-      if (!in_band(target_points[i])) continue;
-      const Eigen::Vector3d l = tgt.plane.toLocal(target_points[i].cast<double>());
-      const Eigen::Vector2i c = ot.cellOf(l.head<2>());
-      if (!ot.inBounds(c.x(), c.y())) continue;
-      const int label = ot.at(c.x(), c.y());
+    const CellPoints& cells = cellsOf(tgt_maps, tgt, ht, target_points, own_target_cells);
+    for (std::size_t c = 0; c < ot.labels.size(); ++c) {
+      const int label = ot.labels[c];
       if (label <= 0) continue;
-      if (l.z() >= lo_flat && l.z() <= ht.at(c.x(), c.y()) + vs)
-        target_object_points[label].push_back(static_cast<std::uint32_t>(i));
+      const double hi = static_cast<double>(ht.heights[c]) + vs;
+      for (std::uint32_t k = cells.start[c]; k < cells.start[c + 1]; ++k) {
+        const std::uint32_t i = cells.index[k];
+        const double z = tgt.plane.toLocal(target_points[i].cast<double>()).z();
+        if (z >= lo_flat && z <= hi) target_object_points[label].push_back(i);
+      }
     }
     return target_object_points;
   };
@@ -625,8 +662,15 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     const int kPointRing = std::max(0, cfg.truncation_voxels);
     std::vector<int> owner = cell_owner;
     std::vector<float> lo_d = cell_lo, hi_d = cell_hi;
+    // Only cells within the ring of an owned cell can change: the owned cells' box, grown.
+    Eigen::AlignedBox2i box;
     for (int y = 0; y < hs.height; ++y)
-      for (int x = 0; x < hs.width; ++x) {
+      for (int x = 0; x < hs.width; ++x)
+        if (cell_owner[hs.index(x, y)] >= 0) box.extend(Eigen::Vector2i(x, y));
+    for (int y = std::max(0, box.min().y() - kPointRing);
+         y <= std::min(hs.height - 1, box.max().y() + kPointRing); ++y)
+      for (int x = std::max(0, box.min().x() - kPointRing);
+           x <= std::min(hs.width - 1, box.max().x() + kPointRing); ++x) {
         const std::size_t i = hs.index(x, y);
         if (cell_owner[i] >= 0) continue;
         for (int dy = -kPointRing; dy <= kPointRing; ++dy)
@@ -643,21 +687,20 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
             }
           }
       }
-    cell_owner.swap(owner);
-    cell_lo.swap(lo_d);
-    cell_hi.swap(hi_d);
-    const BandFilter in_band(
-        src.plane, lo_flat, static_cast<double>(*std::max_element(cell_hi.begin(), cell_hi.end())));
-    for (const auto& p : source_points) {
-      if (!in_band(p)) continue;
-      const Eigen::Vector3d l = src.plane.toLocal(p.cast<double>());
-      const Eigen::Vector2i c = hs.cellOf(l.head<2>());
-      if (!hs.inBounds(c.x(), c.y())) continue;
-      const std::size_t i = hs.index(c.x(), c.y());
-      if (cell_owner[i] < 0) continue;
-      if (l.z() >= cell_lo[i] && l.z() <= cell_hi[i])
-        out[static_cast<std::size_t>(cell_owner[i])].region.points.push_back(p);
+    // The points of the owned cells within their height ranges, appended in input order.
+    const CellPoints& cells = cellsOf(src_maps, src, hs, source_points, own_source_cells);
+    std::vector<std::pair<std::uint32_t, int>> hits;  // (point, candidate)
+    for (std::size_t c = 0; c < owner.size(); ++c) {
+      if (owner[c] < 0) continue;
+      for (std::uint32_t k = cells.start[c]; k < cells.start[c + 1]; ++k) {
+        const std::uint32_t i = cells.index[k];
+        const double z = src.plane.toLocal(source_points[i].cast<double>()).z();
+        if (z >= lo_d[c] && z <= hi_d[c]) hits.emplace_back(i, owner[c]);
+      }
     }
+    std::sort(hits.begin(), hits.end());
+    for (const auto& [i, cand] : hits)
+      out[static_cast<std::size_t>(cand)].region.points.push_back(source_points[i]);
   }
   if (!options.keep_stages) {
     r.source_heights = HeightMap{};
@@ -909,7 +952,8 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     auto& maps = ref ? rmaps : cmaps;
     const auto i = static_cast<std::size_t>(id);
     if (!done[i]) {
-      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg);
+      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg,
+                                 &(ref ? reference : current).points());
       done[i] = true;
     }
     return maps[i];
@@ -937,7 +981,8 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     parallelFor(static_cast<int>(needed.size()), cfg.threads, [&](int k) {
       const auto [ref, id] = needed[static_cast<std::size_t>(k)];
       const auto i = static_cast<std::size_t>(id);
-      (ref ? rmaps : cmaps)[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg);
+      (ref ? rmaps : cmaps)[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg,
+                                                  &(ref ? reference : current).points());
     });
     for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
   }

@@ -41,7 +41,7 @@ ChangeDetector::ChangeDetector(Map&& reference, const Config& cfg)
     : reference_(std::move(reference)), cfg_(cfg) {
   validateConfig(cfg_, "config");
   for (const PlaneSdf& p : reference_.planes())
-    reference_maps_.push_back(computePlaneMaps(p, reference_.planes(), cfg_));
+    reference_maps_.push_back(computePlaneMaps(p, reference_.planes(), cfg_, &reference_.points()));
 }
 
 void ChangeDetector::onEvent(Callback callback) {
@@ -67,7 +67,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
     auto it = current_maps_.find(id);
     if (it == current_maps_.end() || it->second.maps.revision != p.volume.revision() ||
         it->second.num_planes != cp.size()) {
-      CurrentMaps m{computePlaneMaps(p, cp, cfg_), cp.size()};
+      CurrentMaps m{computePlaneMaps(p, cp, cfg_, &current.points()), cp.size()};
       it = current_maps_.insert_or_assign(id, std::move(m)).first;
     }
     return it->second.maps;
