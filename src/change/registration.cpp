@@ -132,6 +132,8 @@ constexpr int kFarCell = -(1 << 30);
 constexpr int kMinGainCells = 20;
 /// Samples of the coarse search of refineInPlane.
 constexpr std::size_t kCoarseSamples = 6000;
+/// Cells around a sample's initial place where sensitiveFirst looks for differing heights.
+constexpr int kSensitiveRadius = 3;
 constexpr double kMinGainFraction = 0.2;
 /// ... or at least this many standard deviations of the initial mismatch count (a Poisson
 /// count): when real changes make most of the mismatches, a drift correction is still clear.
@@ -234,6 +236,28 @@ Score scoreCandidate(const std::vector<Sample>& samples, const Groups& groups, c
   }
   sc.mean_abs = sc.compared > 0 ? sum / sc.compared : 0.0;
   return sc;
+}
+
+/// Puts first the samples whose score can depend on the candidate: those that differ from some
+/// observed target cell within `radius` cells of where the initial T puts them (object edges,
+/// changes); after them those that agree with the whole neighbourhood (flat, static). A
+/// candidate that cannot beat the best so far then passes the best cost, and stops, after few
+/// samples. Stable: each part keeps the raster order.
+void sensitiveFirst(std::vector<Sample>& samples, const HeightMap& tgt, double delta_h,
+                    int radius) {
+  const auto sensitive = [&](const Sample& smp) {
+    const Eigen::Vector2i c = tgt.cellOf(smp.uv);
+    for (int y = c.y() - radius; y <= c.y() + radius; ++y)
+      for (int x = c.x() - radius; x <= c.x() + radius; ++x) {
+        if (!tgt.inBounds(x, y)) continue;
+        const float h = tgt.at(x, y);
+        if (h != kUnobserved &&
+            std::abs(static_cast<double>(h) - static_cast<double>(smp.h)) > delta_h)
+          return true;
+      }
+    return false;
+  };
+  std::stable_partition(samples.begin(), samples.end(), sensitive);
 }
 
 /// True when `a` is a strictly better cost than `b` (capped mismatches, then mean |diff|).
@@ -372,6 +396,10 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   const std::size_t cstride = (samples.size() + kCoarseSamples - 1) / kCoarseSamples;
   for (std::size_t i = 0; i < samples.size(); i += std::max<std::size_t>(1, cstride))
     coarse_samples.push_back(samples[i]);
+  // Scores do not depend on the sample order, except the last bits of mean |diff|; the order
+  // only decides how soon a losing candidate stops.
+  sensitiveFirst(coarse_samples, tgt, cfg.delta_h, kSensitiveRadius);
+  sensitiveFirst(samples, tgt, cfg.delta_h, kSensitiveRadius);
   const double cstep = 2.0 * step, cystep = std::max(1.0, ystep);
   Cand coarse;
   Score coarse_score;
