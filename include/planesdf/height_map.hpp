@@ -12,6 +12,7 @@
 
 #include <Eigen/Core>
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -51,7 +52,18 @@ struct GridGeometry {
   }
   /// The cell containing plane-local (u, v) (floor); may be out of bounds, check inBounds().
   /// Non-finite or absurdly far (u, v) give -1 (out of bounds).
-  Eigen::Vector2i cellOf(const Eigen::Vector2d& uv) const;
+  Eigen::Vector2i cellOf(const Eigen::Vector2d& uv) const {
+    return Eigen::Vector2i(cellIndex(uv.x(), i0), cellIndex(uv.y(), j0));
+  }
+  /// floor(w / cell_size) - origin; -1 when |w / cell_size| >= 5e8 or not finite. An integer
+  /// floor (truncate, minus one where that rounded up): the x86-64 baseline has no rounding
+  /// instruction, and the hot loops of detection call this per point and per cell.
+  int cellIndex(double w, int origin) const {
+    const double q = w / cell_size;
+    if (!(std::abs(q) < 5e8)) return -1;
+    const int i = static_cast<int>(q);
+    return i - (q < static_cast<double>(i) ? 1 : 0) - origin;
+  }
   /// True when both grids have the same size, origin and cell size.
   bool sameGeometry(const GridGeometry& o) const {
     return width == o.width && height == o.height && i0 == o.i0 && j0 == o.j0 &&

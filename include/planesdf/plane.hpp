@@ -47,7 +47,9 @@ struct Plane {
   /// Height of `p` above the plane (positive on the free side).
   double signedDistance(const Eigen::Vector3d& p) const { return normal.dot(p) + offset; }
   /// World point -> (u, v, h) in the plane frame.
-  Eigen::Vector3d toLocal(const Eigen::Vector3d& p) const;
+  Eigen::Vector3d toLocal(const Eigen::Vector3d& p) const {
+    return frame_axes.transpose() * (p - frame_origin);
+  }
   /// (u, v, h) in the plane frame -> world point.
   Eigen::Vector3d toWorld(const Eigen::Vector3d& uvh) const;
   /// Grows `extent` by the in-plane coordinates of `points` (world; non-finite ones are skipped).

@@ -412,7 +412,10 @@ CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
   cp.start.assign(heights.numCells() + 1, 0);
   if (heights.empty()) return cp;
   const BandFilter in_band(plane, 0.5 * cfg.h_obj, maxHeight(heights) + heights.cell_size);
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> hits;  // (point, cell), input order
+  // (point, cell) in input order; a buffer per thread, reused: maps hold millions of points.
+  thread_local std::vector<std::pair<std::uint32_t, std::uint32_t>> scratch;
+  auto& hits = scratch;
+  hits.clear();
   for (std::size_t i = 0; i < points.size(); ++i) {
     if (!in_band(points[i])) continue;
     const Eigen::Vector3d l = plane.toLocal(points[i].cast<double>());
@@ -427,6 +430,7 @@ CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
   cp.index.resize(hits.size());
   std::vector<std::uint32_t> next(cp.start.begin(), cp.start.end() - 1);
   for (const auto& h : hits) cp.index[next[h.second]++] = h.first;
+  if (hits.capacity() > (std::size_t{64} << 20)) hits = {};  // keep at most 512 MiB
   return cp;
 }
 

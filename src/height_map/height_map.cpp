@@ -3,7 +3,6 @@
 
 #include "planesdf/height_map.hpp"
 
-#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 
 #include <omp.h>
@@ -150,16 +149,6 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
 }
 
 }  // namespace
-
-Eigen::Vector2i GridGeometry::cellOf(const Eigen::Vector2d& uv) const {
-  // Far-away or non-finite coordinates map to -1 (out of bounds) instead of overflowing int.
-  const auto cell = [&](double w, int origin) {
-    const double q = w / cell_size;
-    // |q| < 1e9 - |origin| is |floor(q) - origin| < 1e9 up to the cell at the limit.
-    return std::abs(q) < 5e8 ? detail::floorToInt(q) - origin : -1;
-  };
-  return Eigen::Vector2i(cell(uv.x(), i0), cell(uv.y(), j0));
-}
 
 std::size_t HeightMap::numObserved() const {
   return static_cast<std::size_t>(

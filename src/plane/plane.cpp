@@ -46,10 +46,6 @@ Pose Plane::frame() const {
   return pose;
 }
 
-Eigen::Vector3d Plane::toLocal(const Eigen::Vector3d& p) const {
-  return frame_axes.transpose() * (p - frame_origin);
-}
-
 Eigen::Vector3d Plane::toWorld(const Eigen::Vector3d& uvh) const {
   return frame_origin + frame_axes * uvh;
 }
