@@ -121,5 +121,11 @@ struct InPlaneRefinement {
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,
                                 const InPlaneSearch& search = InPlaneSearch{});
+/// refineInPlane with the maps' object maps already computed (computeObjectMap(src, cfg) and
+/// computeObjectMap(tgt, cfg), as the change detection has them).
+InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objects,
+                                const HeightMap& tgt, const ObjectMap& tgt_objects,
+                                Pose& T_target_source_local, const Config& cfg,
+                                const InPlaneSearch& search = InPlaneSearch{});
 
 }  // namespace planesdf

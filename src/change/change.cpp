@@ -499,7 +499,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const HeightMap& ht = tgt_maps.heights;
   const ObjectMap& os = src_maps.objects;
   const ObjectMap& ot = tgt_maps.objects;
-  if (refine_inplane) r.refinement = refineInPlane(hs, ht, r.match.T_target_source_local, cfg);
+  if (refine_inplane)
+    r.refinement = refineInPlane(hs, os, ht, ot, r.match.T_target_source_local, cfg);
   const Pose T = r.match.T_target_source_local;
 
   r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume);
@@ -916,8 +917,9 @@ Pose sessionCorrection(const Map& reference, const Map& current,
   parallelFor(static_cast<int>(horizontal.size()), cfg.threads, [&](int k) {
     const PlaneMatch& m = forward_matches[horizontal[static_cast<std::size_t>(k)]];
     T[k] = m.T_target_source_local;
-    r[k] =
-        refineInPlane(maps(true, m.source_id).heights, maps(false, m.target_id).heights, T[k], cfg);
+    r[k] = refineInPlane(maps(true, m.source_id).heights, maps(true, m.source_id).objects,
+                         maps(false, m.target_id).heights, maps(false, m.target_id).objects, T[k],
+                         cfg);
   });
   Pose correction = Pose::Identity();
   int best_gain = 0;

@@ -271,11 +271,28 @@ bool better(const Score& a, const Score& b) {
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,
                                 const InPlaneSearch& search) {
+  // Maps it rejects (empty, or with a cell array of the wrong size: it returns or throws before
+  // reading the object maps) get none.
+  const bool usable = !src.empty() && !tgt.empty() && src.heights.size() == src.numCells() &&
+                      tgt.heights.size() == tgt.numCells();
+  if (!usable)
+    return refineInPlane(src, ObjectMap{}, tgt, ObjectMap{}, T_target_source_local, cfg, search);
+  return refineInPlane(src, computeObjectMap(src, cfg), tgt, computeObjectMap(tgt, cfg),
+                       T_target_source_local, cfg, search);
+}
+
+InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objects,
+                                const HeightMap& tgt, const ObjectMap& tgt_objects,
+                                Pose& T_target_source_local, const Config& cfg,
+                                const InPlaneSearch& search) {
   InPlaneRefinement out;
   if (src.empty() || tgt.empty() || !(tgt.cell_size > 0.0)) return out;
   if (src.heights.size() != src.numCells() || tgt.heights.size() != tgt.numCells()) {
     throw Error("height map", "cell array does not match the grid size");
   }
+  if (!src_objects.sameGeometry(src) || !tgt_objects.sameGeometry(tgt) ||
+      src_objects.labels.size() != src.numCells() || tgt_objects.labels.size() != tgt.numCells())
+    throw Error("object map", "grid does not match its height map");
   const Pose& T = T_target_source_local;
 
   // Observed source cells, evenly subsampled to at most max_cells.
@@ -312,8 +329,6 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
   };
   // Groups: a sample on an object of the source map belongs to it; else one whose target cell
   // (initial T) is on an object of the target map belongs to that one; else the background.
-  const ObjectMap src_objects = computeObjectMap(src, cfg);
-  const ObjectMap tgt_objects = computeObjectMap(tgt, cfg);
   const int n_src_objects = src_objects.numObjects();
   const auto n_groups = static_cast<std::size_t>(1 + n_src_objects + tgt_objects.numObjects());
   std::vector<Sample> samples;

@@ -255,6 +255,34 @@ TEST(HeightCompare, YawOfTwoDegreesIsRemovedByRefinement) {
   EXPECT_TRUE(after.blobs.empty());
 }
 
+TEST(HeightCompare, RefinementWithGivenObjectMapsMatchesAndChecksThem) {
+  // The detection passes the object maps it has; the result is the same transform and figures.
+  const Config cfg;
+  const std::vector<Box> scene{kObject, {8, 40, 6, 12, 0.05f}, {40, 42, 10, 10, 0.08f}};
+  const HeightMap src = render(scene);
+  const HeightMap tgt = render(scene, yawShift(1.0 * kDeg, 2 * kCell, -kCell));
+  Pose T1 = Pose::Identity(), T2 = Pose::Identity();
+  const InPlaneRefinement a = refineInPlane(src, tgt, T1, cfg);
+  const InPlaneRefinement b =
+      refineInPlane(src, computeObjectMap(src, cfg), tgt, computeObjectMap(tgt, cfg), T2, cfg);
+  EXPECT_TRUE(a.applied);
+  EXPECT_EQ(a.applied, b.applied);
+  EXPECT_EQ(a.mismatches_after, b.mismatches_after);
+  EXPECT_EQ(a.compared_after, b.compared_after);
+  EXPECT_EQ(a.du, b.du);
+  EXPECT_EQ(a.dv, b.dv);
+  EXPECT_EQ(a.dyaw, b.dyaw);
+  EXPECT_TRUE(T1.isApprox(T2, 0.0));
+  // Object maps of another grid are an error, not a wrong answer.
+  HeightMap small = src;
+  small.width -= 8;
+  small.heights.resize(small.numCells());
+  Pose T3 = Pose::Identity();
+  EXPECT_THROW(
+      refineInPlane(src, computeObjectMap(small, cfg), tgt, computeObjectMap(tgt, cfg), T3, cfg),
+      Error);
+}
+
 TEST(HeightCompare, ShiftAndYawTogetherButRealRemovalStays) {
   const Config cfg;
   const std::vector<Box> statics{
