@@ -303,27 +303,31 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   // Per source cell under the initial T: -1 not compared, 0 agrees, 1 differs. A difference
   // with no differing 8-neighbour is sensor noise (the comparison's component filter drops it
   // too): it is not a sample, so noise cannot dilute the evidence of a real misalignment.
-  std::vector<std::int8_t> state(src.numCells(), -1);
-  for (int y = 0; y < src.height; ++y)
-    for (int x = 0; x < src.width; ++x) {
-      const float h = src.at(x, y);
-      if (h == kUnobserved) continue;
-      const Eigen::Vector2d c = src.cellCenter(x, y);
-      const Eigen::Vector2i tc = tgt.cellOf((T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>());
-      if (!tgt.inBounds(tc.x(), tc.y()) || !tgt.observed(tc.x(), tc.y())) continue;
-      state[static_cast<std::size_t>(y) * src.width + x] =
-          std::abs(static_cast<double>(tgt.at(tc.x(), tc.y())) - static_cast<double>(h)) >
-                  cfg.delta_h
-              ? 1
-              : 0;
-    }
+  // Computed on first use: only the samples and the neighbours of differing ones need it.
+  constexpr std::int8_t kNotYet = -2;
+  std::vector<std::int8_t> state(src.numCells(), kNotYet);
+  const auto stateAt = [&](int x, int y) {
+    std::int8_t& st = state[src.index(x, y)];
+    if (st != kNotYet) return st;
+    st = -1;
+    const float h = src.at(x, y);
+    if (h == kUnobserved) return st;
+    const Eigen::Vector2d c = src.cellCenter(x, y);
+    const Eigen::Vector2i tc = tgt.cellOf((T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>());
+    if (!tgt.inBounds(tc.x(), tc.y()) || !tgt.observed(tc.x(), tc.y())) return st;
+    st =
+        std::abs(static_cast<double>(tgt.at(tc.x(), tc.y())) - static_cast<double>(h)) > cfg.delta_h
+            ? 1
+            : 0;
+    return st;
+  };
   const auto isolated = [&](int x, int y) {
     for (int dy = -1; dy <= 1; ++dy)
       for (int dx = -1; dx <= 1; ++dx) {
         if ((dx == 0 && dy == 0) || x + dx < 0 || y + dy < 0 || x + dx >= src.width ||
             y + dy >= src.height)
           continue;
-        if (state[static_cast<std::size_t>(y + dy) * src.width + (x + dx)] == 1) return false;
+        if (stateAt(x + dx, y + dy) == 1) return false;
       }
     return true;
   };
@@ -342,7 +346,7 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
       const float h = src.at(x, y);
       if (h == kUnobserved) continue;
       if (k++ % stride != 0) continue;
-      const std::int8_t st = state[static_cast<std::size_t>(y) * src.width + x];
+      const std::int8_t st = stateAt(x, y);
       if (st < 0 || (st == 1 && isolated(x, y))) continue;
       const Eigen::Vector2d c = src.cellCenter(x, y);
       const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
