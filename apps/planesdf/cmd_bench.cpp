@@ -80,6 +80,53 @@ std::size_t mapVoxels(const Map& map) {
   return n;
 }
 
+/// The room pair of issue 7's detection target: the `room` preset (seed kBenchRoomSeed, the demo's
+/// room) fused frame by frame, then detectChanges run kRoomDetectRuns times on the same maps.
+struct RoomFigures {
+  std::size_t frames = 0;
+  double integrate_ms_median = 0.0;
+  std::vector<double> detect_ms;  ///< per run, in order
+  std::size_t events = 0;
+  std::size_t voxels = 0;
+  std::size_t map_bytes = 0;
+};
+
+constexpr unsigned kBenchRoomSeed = 1;
+constexpr int kRoomDetectRuns = 3;
+
+RoomFigures roomBench(int max_frames) {
+  const sim::Scene scene = sim::makePreset("room", kBenchRoomSeed);
+  std::cerr << "bench: room preset, seed " << kBenchRoomSeed << "\n";
+  const Sequence ref = renderSession(scene, scene.reference, 0, max_frames, "room reference");
+  const Sequence cur = renderSession(scene, scene.current, 1, max_frames, "room current");
+  Config cfg;
+  Map reference(cfg), current(cfg);
+  std::vector<double> integrate_ms;
+  for (const auto& [seq, map] : {std::pair<const Sequence*, Map*>{&ref, &reference},
+                                 std::pair<const Sequence*, Map*>{&cur, &current}})
+    for (std::size_t i = 0; i < seq->frames.size(); ++i) {
+      const auto t0 = Clock::now();
+      map->integrate(seq->frames[i], seq->poses[i]);
+      integrate_ms.push_back(msSince(t0));
+      if ((i + 1) % 10 == 0 || i + 1 == seq->frames.size())
+        std::cerr << "bench: room fused " << (i + 1) << "/" << seq->frames.size() << "\n";
+    }
+  RoomFigures r;
+  r.frames = ref.frames.size();
+  r.integrate_ms_median = quantile(integrate_ms, 0.5);
+  for (int k = 0; k < kRoomDetectRuns; ++k) {
+    const auto td = Clock::now();
+    const ChangeSet set = detectChanges(reference, current, cfg);
+    r.detect_ms.push_back(msSince(td));
+    r.events = set.events.size();
+    std::cerr << "bench: room detectChanges " << r.detect_ms.back() << " ms, " << r.events
+              << " events\n";
+  }
+  r.voxels = mapVoxels(reference) + mapVoxels(current);
+  r.map_bytes = reference.memoryBytes() + current.memoryBytes();
+  return r;
+}
+
 int runSingleBench(const BenchArgs& args) {
   const sim::Scene scene = sim::makePreset("tabletop", kBenchSeed);
   std::cerr << "bench: tabletop preset, seed " << kBenchSeed << ", 640x480 frames, voxel "
@@ -153,6 +200,18 @@ int runSingleBench(const BenchArgs& args) {
   j["voxels"] = mapVoxels(reference);
   j["planes"] = reference.planes().size();
 
+  // The room pair last, with the tabletop maps freed: its maps are larger than everything above.
+  reference = Map(cfg);
+  current = Map(cfg);
+  const RoomFigures room = roomBench(args.frames);
+  j["room_frames"] = room.frames;
+  j["room_integrate_ms_median"] = room.integrate_ms_median;
+  j["detect_room_ms"] = quantile(room.detect_ms, 0.5);
+  j["detect_room_ms_runs"] = room.detect_ms;
+  j["room_events"] = room.events;
+  j["room_voxels"] = room.voxels;
+  j["room_map_bytes"] = room.map_bytes;
+
   std::printf("planesdf bench: tabletop seed %u, %zu frames of %dx%d, voxel %.1f mm\n", kBenchSeed,
               ref.frames.size(), scene.sensor.intrinsics.width, scene.sensor.intrinsics.height,
               cfg.voxel_size * 1000);
@@ -166,13 +225,16 @@ int runSingleBench(const BenchArgs& args) {
     std::printf("  octomap: n/a (%s)\n", octomap_note.c_str());
   std::printf("  %-34s %10.1f ms (%zu events)\n", "detectChanges (one scene pair)", detect_ms,
               set.events.size());
-  std::printf("  %-34s %10.1f MB\n", "map memory (reference)",
-              static_cast<double>(reference.memoryBytes()) / 1e6);
+  std::printf("  %-34s %10.1f ms (median of %d; %zu events, %zu + %zu frames)\n",
+              "detectChanges (room pair)", quantile(room.detect_ms, 0.5), kRoomDetectRuns,
+              room.events, room.frames, room.frames);
+  std::printf("  %-34s %10.1f MB\n", "map memory (reference)", j["map_bytes"].get<double>() / 1e6);
   if (std::isfinite(octomap_bytes))
     std::printf("  %-34s %10.1f MB\n", "octomap memory", octomap_bytes / 1e6);
-  std::printf("  %-34s %10zu in %zu planes\n", "voxels", mapVoxels(reference),
-              reference.planes().size());
-  std::printf("  %-34s %10.1f MB\n", "peak RSS", peakRssMb());
+  std::printf("  %-34s %10zu in %zu planes\n", "voxels", j["voxels"].get<std::size_t>(),
+              j["planes"].get<std::size_t>());
+  std::printf("  %-34s %10.1f MB (before the room pair)\n", "peak RSS",
+              j["peak_rss_mb"].get<double>());
   if (!args.json.empty()) {
     writeText(args.json, j.dump(2) + "\n");
     std::printf("-> %s\n", args.json.c_str());

@@ -6,6 +6,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <filesystem>
 #include <string>
 
@@ -35,6 +36,18 @@ TEST(BenchCli, ShortRunWritesSaneJson) {
   EXPECT_GT(j.at("voxels").get<double>(), 0.0);
   // A voxel costs at least a few bytes and the map is more than its voxels' count of bytes.
   EXPECT_GE(j.at("map_bytes").get<double>(), j.at("voxels").get<double>());
+  // The room pair (issue 7's detection target): its frames, one time per detectChanges run and
+  // their median.
+  EXPECT_EQ(j.at("room_frames").get<int>(), 3);
+  const auto runs = j.at("detect_room_ms_runs").get<std::vector<double>>();
+  ASSERT_EQ(runs.size(), 3u);
+  for (const double ms : runs) EXPECT_GT(ms, 0.0);
+  std::vector<double> sorted = runs;
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_EQ(j.at("detect_room_ms").get<double>(), sorted[1]);
+  EXPECT_GT(j.at("room_voxels").get<double>(), 0.0);
+  EXPECT_GE(j.at("room_map_bytes").get<double>(), j.at("room_voxels").get<double>());
+  EXPECT_NE(r.out.find("room pair"), std::string::npos) << r.out;
 #ifdef PLANESDF_TEST_HAVE_OCTOMAP
   ASSERT_TRUE(j.at("octomap_ms_median").is_number()) << j.dump();
   EXPECT_GT(j.at("octomap_ms_median").get<double>(), 0.0);
