@@ -543,6 +543,17 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     return target_object_points;
   };
 
+  // Per target object label, its cells (row-major indices, raster order), once a candidate
+  // needs them.
+  std::vector<std::vector<std::size_t>> label_cells;
+  const auto target_label_cells = [&]() -> const std::vector<std::vector<std::size_t>>& {
+    if (!label_cells.empty()) return label_cells;
+    label_cells.resize(static_cast<std::size_t>(ot.numObjects()) + 1);
+    for (std::size_t c = 0; c < ot.labels.size(); ++c)
+      if (ot.labels[c] > 0) label_cells[static_cast<std::size_t>(ot.labels[c])].push_back(c);
+    return label_cells;
+  };
+
   std::vector<CandidateChange> out;
   // Per cell: index of the candidate it belongs to and its height range.
   std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
@@ -630,14 +641,18 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if (!target_labels.empty()) {  // the target objects it lands on, as a region
       ChangeRegion& to = cand.target_object;
       to.plane_id = tgt.plane.id;
-      std::vector<char> is_target(static_cast<std::size_t>(ot.numObjects()) + 1, 0);
-      for (const int label : target_labels) is_target[static_cast<std::size_t>(label)] = 1;
+      // Its objects' cells in raster order.
+      std::vector<std::size_t> flat;
+      for (const int label : target_labels) {
+        const auto& lc = target_label_cells()[static_cast<std::size_t>(label)];
+        flat.insert(flat.end(), lc.begin(), lc.end());
+      }
+      std::sort(flat.begin(), flat.end());
       std::vector<Eigen::Vector2i> cells;
-      for (int y = 0; y < ot.height; ++y)
-        for (int x = 0; x < ot.width; ++x) {
-          const int label = ot.at(x, y);
-          if (label > 0 && is_target[static_cast<std::size_t>(label)]) cells.emplace_back(x, y);
-        }
+      cells.reserve(flat.size());
+      for (const std::size_t i : flat)
+        cells.emplace_back(static_cast<int>(i % static_cast<std::size_t>(ot.width)),
+                           static_cast<int>(i / static_cast<std::size_t>(ot.width)));
       for (const auto& c : cells) {
         to.columns.emplace_back(ot.i0 + c.x(), ot.j0 + c.y());
         const float h = ht.at(c.x(), c.y());
@@ -667,21 +682,38 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     const int kPointRing = std::max(0, cfg.truncation_voxels);
     std::vector<int> owner = cell_owner;
     std::vector<float> lo_d = cell_lo, hi_d = cell_hi;
-    // Only cells within the ring of an owned cell can change: the owned cells' box, grown.
+    // Only cells with an owned cell within the ring can change: those of the owned cells' box,
+    // grown, whose window holds an owned cell (summed-area table of the owned cells).
     Eigen::AlignedBox2i box;
     for (int y = 0; y < hs.height; ++y)
       for (int x = 0; x < hs.width; ++x)
         if (cell_owner[hs.index(x, y)] >= 0) box.extend(Eigen::Vector2i(x, y));
-    for (int y = std::max(0, box.min().y() - kPointRing);
-         y <= std::min(hs.height - 1, box.max().y() + kPointRing); ++y)
-      for (int x = std::max(0, box.min().x() - kPointRing);
-           x <= std::min(hs.width - 1, box.max().x() + kPointRing); ++x) {
+    if (box.isEmpty()) box.extend(Eigen::Vector2i(0, 0));  // no owned cell: nothing to grow
+    const int bx0 = std::max(0, box.min().x() - kPointRing);
+    const int by0 = std::max(0, box.min().y() - kPointRing);
+    const int bx1 = std::min(hs.width - 1, box.max().x() + kPointRing);
+    const int by1 = std::min(hs.height - 1, box.max().y() + kPointRing);
+    const int bw = bx1 - bx0 + 2;  // table of (bw) x (bh), one leading row and column of 0
+    std::vector<int> sat(static_cast<std::size_t>(bw) * static_cast<std::size_t>(by1 - by0 + 2), 0);
+    const auto satAt = [&](int x, int y) -> int& {  // owned cells in [bx0, x) x [by0, y)
+      return sat[static_cast<std::size_t>(y - by0) * static_cast<std::size_t>(bw) +
+                 static_cast<std::size_t>(x - bx0)];
+    };
+    for (int y = by0; y <= by1; ++y)
+      for (int x = bx0; x <= bx1; ++x)
+        satAt(x + 1, y + 1) = satAt(x, y + 1) + satAt(x + 1, y) - satAt(x, y) +
+                              (cell_owner[hs.index(x, y)] >= 0 ? 1 : 0);
+    for (int y = by0; y <= by1; ++y)
+      for (int x = bx0; x <= bx1; ++x) {
         const std::size_t i = hs.index(x, y);
         if (cell_owner[i] >= 0) continue;
-        for (int dy = -kPointRing; dy <= kPointRing; ++dy)
-          for (int dx = -kPointRing; dx <= kPointRing; ++dx) {
-            if (!hs.inBounds(x + dx, y + dy)) continue;
-            const std::size_t n = hs.index(x + dx, y + dy);
+        const int x0 = std::max(bx0, x - kPointRing), x1 = std::min(bx1, x + kPointRing);
+        const int y0 = std::max(by0, y - kPointRing), y1 = std::min(by1, y + kPointRing);
+        if (satAt(x1 + 1, y1 + 1) - satAt(x0, y1 + 1) - satAt(x1 + 1, y0) + satAt(x0, y0) == 0)
+          continue;
+        for (int ny = y0; ny <= y1; ++ny)
+          for (int nx = x0; nx <= x1; ++nx) {
+            const std::size_t n = hs.index(nx, ny);
             if (cell_owner[n] < 0) continue;
             if (owner[i] < 0) {
               owner[i] = cell_owner[n];
