@@ -135,6 +135,7 @@ class Map {
   static Map deserialize(const std::string& bytes, const std::string& name);
 
  private:
+  static Map deserializeBytes(const char* data, std::size_t size, const std::string& name);
   void syncPlanes(IntegrateStats& stats);
   IntegrateStats integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
                                 bool whole_cloud);
