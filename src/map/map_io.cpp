@@ -8,7 +8,9 @@
 //             max u, max v), 3 f64 frame origin, 9 f64 frame axes (column-major),
 //             f64 voxel size, f64 truncation, u32 block count, per block 3 i32 index +
 //             512 x (f32 sdf, f32 weight); u64 point count + 3 f32 per point
-//   trailer : u64 FNV-1a checksum of the payload
+//   trailer : u64 checksum of the payload: version 2, checksum64 (FNV-1a steps over 8-byte
+//             words in 4 interleaved lanes, then the tail bytes, folded); version 1 (read
+//             only), byte-wise FNV-1a, which reads under 1 GB/s
 //
 // Every count is checked against the bytes left before anything is allocated.
 #include <cstring>
@@ -31,16 +33,39 @@ namespace planesdf {
 namespace {
 
 constexpr char kMagic[8] = {'P', 'S', 'D', 'F', 'M', 'A', 'P', '\0'};
-constexpr std::uint32_t kVersion = 1;
+constexpr std::uint32_t kVersion = 2;
+constexpr std::uint32_t kOldestReadableVersion = 1;  // same layout, byte-wise FNV-1a checksum
 constexpr std::size_t kHeaderSize = 8 + 4 + 4 + 8;
 constexpr std::size_t kBlockBytes = 3 * 4 + kTsdfBlockVoxels * 8;
 
+constexpr std::uint64_t kFnvOffset = 1469598103934665603ull;
+constexpr std::uint64_t kFnvPrime = 1099511628211ull;
+
+/// Version 1's checksum: one FNV-1a step per byte, each waiting for the last.
 std::uint64_t fnv1a(const char* data, std::size_t n) {
-  std::uint64_t h = 1469598103934665603ull;
+  std::uint64_t h = kFnvOffset;
   for (std::size_t i = 0; i < n; ++i) {
     h ^= static_cast<unsigned char>(data[i]);
-    h *= 1099511628211ull;
+    h *= kFnvPrime;
   }
+  return h;
+}
+
+/// Version 2's checksum: FNV-1a steps (xor, then multiply by an odd prime: a bijection of the
+/// state) over 8-byte little-endian words in 4 interleaved lanes, so four multiplies are in
+/// flight; then the tail bytes and the lanes folded in. Any change of one word changes its
+/// lane and so the result.
+std::uint64_t checksum64(const char* data, std::size_t n) {
+  std::uint64_t lane[4] = {kFnvOffset, kFnvOffset ^ 1, kFnvOffset ^ 2, kFnvOffset ^ 3};
+  std::size_t i = 0;
+  for (; i + 32 <= n; i += 32)
+    for (int k = 0; k < 4; ++k) {
+      std::uint64_t w;
+      std::memcpy(&w, data + i + 8 * k, 8);
+      lane[k] = (lane[k] ^ w) * kFnvPrime;
+    }
+  std::uint64_t h = fnv1a(data + i, n - i) ^ static_cast<std::uint64_t>(n);
+  for (const std::uint64_t l : lane) h = (h ^ l) * kFnvPrime;
   return h;
 }
 
@@ -195,7 +220,7 @@ std::string Map::serialize() const {
   file.put<std::uint32_t>(0);
   file.put<std::uint64_t>(w.out.size());
   file.out += w.out;
-  file.put<std::uint64_t>(fnv1a(w.out.data(), w.out.size()));
+  file.put<std::uint64_t>(checksum64(w.out.data(), w.out.size()));
   return std::move(file.out);
 }
 
@@ -208,9 +233,10 @@ Map Map::deserializeBytes(const char* data, std::size_t size, const std::string&
     throw Error(name, "not a planesdf map (no PSDFMAP header)");
   Reader head(data, 8, kHeaderSize, name);
   const auto version = head.get<std::uint32_t>("version");
-  if (version != kVersion)
+  if (version < kOldestReadableVersion || version > kVersion)
     throw Error(name, "map format version " + std::to_string(version) +
-                          " is not supported (this build reads version " +
+                          " is not supported (this build reads versions " +
+                          std::to_string(kOldestReadableVersion) + " to " +
                           std::to_string(kVersion) + ")");
   head.get<std::uint32_t>("reserved");
   const auto payload = head.get<std::uint64_t>("payload size");
@@ -220,7 +246,8 @@ Map Map::deserializeBytes(const char* data, std::size_t size, const std::string&
                           std::to_string(size - kHeaderSize - 8) + " (truncated?)");
   std::uint64_t stored = 0;
   std::memcpy(&stored, data + size - 8, 8);
-  if (stored != fnv1a(data + kHeaderSize, payload))
+  const char* body = data + kHeaderSize;
+  if (stored != (version == 1 ? fnv1a(body, payload) : checksum64(body, payload)))
     throw Error(name, "corrupt map: checksum mismatch");
 
   Reader r(data, kHeaderSize, kHeaderSize + payload, name);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -210,6 +211,33 @@ TEST(Map, CorruptTruncatedAndForeignFilesNameTheFile) {
   future[8] = 99;  // version
   EXPECT_NE(errorOf(future, "future.psdf").find("version 99"), std::string::npos);
   EXPECT_THROW(Map::load(tmp.file("missing.psdf")), Error);
+}
+
+TEST(Map, ReadsVersionOneMapsAndCatchesTheirCorruption) {
+  // Version 1 had the same layout with a byte-wise FNV-1a checksum; such files still load, and
+  // are the same map (written back as the current version, byte for byte what the original
+  // writes).
+  const Map m = tableMap();
+  const std::string current = m.serialize();
+  std::string v1 = current;
+  const std::uint32_t one = 1;
+  std::memcpy(&v1[8], &one, sizeof(one));
+  std::uint64_t h = 1469598103934665603ull;
+  for (std::size_t i = 24; i + 8 < v1.size(); ++i) {
+    h ^= static_cast<unsigned char>(v1[i]);
+    h *= 1099511628211ull;
+  }
+  std::memcpy(&v1[v1.size() - 8], &h, sizeof(h));
+  EXPECT_EQ(Map::deserialize(v1, "v1.psdf").serialize(), current);
+  std::string flipped = v1;
+  flipped[flipped.size() / 2] ^= 0x01;
+  EXPECT_THROW(Map::deserialize(flipped, "v1.psdf"), Error);
+  // The current checksum catches a flipped bit in every part of the payload.
+  for (const std::size_t at : {std::size_t{24}, current.size() / 3, current.size() - 9}) {
+    std::string bad = current;
+    bad[at] ^= 0x01;
+    EXPECT_THROW(Map::deserialize(bad, "bad.psdf"), Error) << at;
+  }
 }
 
 TEST(Map, SameMapOnOneAndTwoThreads) {
