@@ -155,6 +155,10 @@ class BlockSlabs {
   ~BlockSlabs();
   /// A new block, all voxels unobserved (a value-initialised TsdfBlock).
   TsdfBlock* create();
+  /// Makes room for `n` more blocks in one slab (huge pages from 2 MiB on) when the current one
+  /// has less: a volume whose size is known up front (a copy, a loaded map, a region) is not
+  /// grown through many small slabs, each page of them a fault.
+  void reserve(std::size_t n);
   /// Frees every slab.
   void clear() noexcept;
   /// Bytes the slabs hold (their whole capacity).
@@ -222,6 +226,8 @@ class TsdfVolume {
   /// The block at `b`, allocated (all voxels unobserved) when missing; `created` tells which.
   /// Throws planesdf::Error when `b` is outside blockIndexInRange().
   TsdfBlock& allocateBlock(const Eigen::Vector3i& b, bool* created = nullptr);
+  /// Makes room for `n` more blocks (storage, index, hash table) before allocating them.
+  void reserveBlocks(std::size_t n);
   /// The slot of block `b` (its position in allocation order), or -1.
   std::ptrdiff_t blockSlot(const Eigen::Vector3i& b) const {
     if (!blockIndexInRange(b)) return -1;

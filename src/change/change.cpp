@@ -208,48 +208,57 @@ TsdfVolume completedRegion(const TsdfVolume& vol, const HeightMap& hm, const Eig
   const double vs = vol.voxelSize();
   const double trunc = vol.truncation();
   const float w_fill = std::max(w_min, 1.0f);
-  // Consecutive voxels of a column share blocks: the last source and output blocks are kept
-  // (block storage is stable; output blocks are allocated, in the same order, on first write).
-  Eigen::Vector3i src_key = Eigen::Vector3i::Constant(std::numeric_limits<int>::min());
-  Eigen::Vector3i out_key = src_key;
-  const TsdfBlock* src_block = nullptr;
-  TsdfBlock* out_block = nullptr;
   const int nx = hi.x() - lo.x() + 1;
-  for (int i = lo.x(); i <= hi.x(); ++i)
-    for (int j = lo.y(); j <= hi.y(); ++j) {
-      if (!need[static_cast<std::size_t>(j - lo.y()) * nx + (i - lo.x())]) continue;
-      const int x = i - hm.i0, y = j - hm.j0;
-      const bool col_known = hm.inBounds(x, y) && hm.observed(x, y);
-      const double surface = col_known ? static_cast<double>(hm.at(x, y)) : 0.0;
-      for (int k = lo.z(); k <= hi.z(); ++k) {
-        const Eigen::Vector3i v(i, j, k);
-        const Eigen::Vector3i b = TsdfVolume::blockOfVoxel(v);
-        if (b != src_key) {
-          src_key = b;
-          src_block = vol.findBlock(b);
-        }
-        const auto li = static_cast<std::size_t>(TsdfVolume::linearIndexInBlock(v));
-        TsdfVoxel val = src_block != nullptr ? src_block->voxels[li] : TsdfVoxel{};
-        if (!(val.weight > 0.0f && val.weight >= w_min)) {
-          const double above = (k + 0.5) * vs - surface;
-          if (col_known && above > 0.0) {
-            val = TsdfVoxel{static_cast<float>(std::min(above, trunc)), w_fill};
-          } else if (val.weight <= 0.0f) {
-            continue;
-          }
-        }
-        if (b != out_key) {
-          out_key = b;
-          out_block = &out.allocateBlock(b);
-        }
-        out_block->voxels[li] = val;
-      }
+  // Block by block: one lookup of the source block and, on the first voxel written, one
+  // allocation of the output block; voxels in storage order (x fastest, then y, then z).
+  const Eigen::Vector3i blo = TsdfVolume::blockOfVoxel(lo), bhi = TsdfVolume::blockOfVoxel(hi);
+  // At most the blocks of the block columns holding a needed column, reserved at once.
+  std::size_t columns_needed = 0;
+  for (int by = blo.y(); by <= bhi.y(); ++by)
+    for (int bx = blo.x(); bx <= bhi.x(); ++bx) {
+      bool any = false;
+      for (int j = std::max(lo.y(), by * kTsdfBlockSide);
+           !any && j <= std::min(hi.y(), (by + 1) * kTsdfBlockSide - 1); ++j)
+        for (int i = std::max(lo.x(), bx * kTsdfBlockSide);
+             !any && i <= std::min(hi.x(), (bx + 1) * kTsdfBlockSide - 1); ++i)
+          any = need[static_cast<std::size_t>(j - lo.y()) * nx + (i - lo.x())] != 0;
+      columns_needed += any ? 1 : 0;
     }
+  out.reserveBlocks(columns_needed * static_cast<std::size_t>(bhi.z() - blo.z() + 1));
+  for (int bz = blo.z(); bz <= bhi.z(); ++bz)
+    for (int by = blo.y(); by <= bhi.y(); ++by)
+      for (int bx = blo.x(); bx <= bhi.x(); ++bx) {
+        const Eigen::Vector3i b(bx, by, bz);
+        const TsdfBlock* src_block = vol.findBlock(b);
+        TsdfBlock* out_block = nullptr;
+        const Eigen::Vector3i v0 = b * kTsdfBlockSide;
+        for (int k = std::max(lo.z(), v0.z()); k <= std::min(hi.z(), v0.z() + kTsdfBlockSide - 1);
+             ++k)
+          for (int j = std::max(lo.y(), v0.y()); j <= std::min(hi.y(), v0.y() + kTsdfBlockSide - 1);
+               ++j)
+            for (int i = std::max(lo.x(), v0.x());
+                 i <= std::min(hi.x(), v0.x() + kTsdfBlockSide - 1); ++i) {
+              if (!need[static_cast<std::size_t>(j - lo.y()) * nx + (i - lo.x())]) continue;
+              const Eigen::Vector3i v(i, j, k);
+              const auto li = static_cast<std::size_t>(TsdfVolume::linearIndexInBlock(v));
+              TsdfVoxel val = src_block != nullptr ? src_block->voxels[li] : TsdfVoxel{};
+              if (!(val.weight > 0.0f && val.weight >= w_min)) {
+                const int x = i - hm.i0, y = j - hm.j0;
+                const bool col_known = hm.inBounds(x, y) && hm.observed(x, y);
+                const double above =
+                    (k + 0.5) * vs - (col_known ? static_cast<double>(hm.at(x, y)) : 0.0);
+                if (col_known && above > 0.0) {
+                  val = TsdfVoxel{static_cast<float>(std::min(above, trunc)), w_fill};
+                } else if (val.weight <= 0.0f) {
+                  continue;
+                }
+              }
+              if (out_block == nullptr) out_block = &out.allocateBlock(b);
+              out_block->voxels[li] = val;
+            }
+      }
   return out;
 }
-
-/// Flags the columns of the box [lo, hi] (row-major over its x-y extent) within `margin`
-/// (Chebyshev) of one of `columns`.
 std::vector<std::uint8_t> columnsNear(std::vector<Eigen::Vector2i> columns,
                                       const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
                                       int margin) {

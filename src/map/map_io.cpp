@@ -289,6 +289,7 @@ Map Map::deserializeBytes(const char* data, std::size_t size, const std::string&
     TsdfVolume vol(voxel, trunc);
     const auto n_blocks = r.get<std::uint32_t>("block count");
     r.needItems(n_blocks, kBlockBytes, "block");
+    vol.reserveBlocks(n_blocks);
     for (std::uint32_t b = 0; b < n_blocks; ++b) {
       Eigen::Vector3i idx;
       for (int k = 0; k < 3; ++k) idx[k] = r.get<std::int32_t>("block index");

@@ -127,6 +127,20 @@ TsdfBlock* BlockSlabs::create() {
   return b;
 }
 
+void BlockSlabs::reserve(std::size_t n) {
+  if (n == 0 || (!slabs_.empty() && slabs_.back().capacity - used_ >= n)) return;
+  // Whole huge pages from one on: the tail of the last page holds blocks too.
+  std::size_t bytes = n * sizeof(TsdfBlock);
+  if (bytes >= kHugePageBytes)
+    bytes = (bytes + kHugePageBytes - 1) / kHugePageBytes * kHugePageBytes;
+  if (slabs_.size() == slabs_.capacity())
+    slabs_.reserve(std::max<std::size_t>(8, 2 * slabs_.capacity()));
+  auto* memory = static_cast<TsdfBlock*>(allocateLarge(bytes));
+  slabs_.push_back({memory, bytes / sizeof(TsdfBlock), bytes});
+  bytes_ += bytes;
+  used_ = 0;
+}
+
 void BlockSlabs::clear() noexcept {
   for (const Slab& s : slabs_) freeLarge(s.blocks, s.bytes);
   slabs_.clear();
@@ -157,6 +171,7 @@ TsdfVolume::TsdfVolume(const TsdfVolume& other)
       hi_(other.hi_),
       revision_(other.revision_) {
   blocks_.reserve(other.blocks_.size());
+  slabs_.reserve(other.blocks_.size());
   for (const TsdfBlock* b : other.blocks_) {
     TsdfBlock* copy = slabs_.create();
     *copy = *b;
@@ -205,6 +220,12 @@ TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
     hi_ = hi_.cwiseMax(b);
   }
   return *blocks_.back();
+}
+
+void TsdfVolume::reserveBlocks(std::size_t n) {
+  if (blocks_.capacity() < blocks_.size() + n) blocks_.reserve(blocks_.size() + n);
+  map_.reserve(map_.size() + n);
+  slabs_.reserve(n);
 }
 
 std::vector<Eigen::Vector3i> TsdfVolume::blockIndices() const {
