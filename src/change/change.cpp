@@ -259,6 +259,9 @@ TsdfVolume completedRegion(const TsdfVolume& vol, const HeightMap& hm, const Eig
       }
   return out;
 }
+
+/// Flags the columns of the box [lo, hi] (row-major over its x-y extent) within `margin`
+/// (Chebyshev) of one of `columns`.
 std::vector<std::uint8_t> columnsNear(std::vector<Eigen::Vector2i> columns,
                                       const Eigen::Vector3i& lo, const Eigen::Vector3i& hi,
                                       int margin) {
