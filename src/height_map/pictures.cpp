@@ -24,6 +24,9 @@ const cv::Scalar kBlack(0, 0, 0);
 const cv::Vec3b kFlatColor(80, 80, 80);
 const cv::Vec3b kUnobservedColor(0, 0, 0);
 constexpr int kFont = cv::FONT_HERSHEY_SIMPLEX;
+/// Object-map pictures number the objects of at least this many cells, at most kMaxLabels.
+constexpr int kLabelMinCells = 20;
+constexpr std::size_t kMaxLabels = 100;
 constexpr double kFontScale = 0.42;
 
 void putLabel(cv::Mat& img, const std::string& text, cv::Point at, const cv::Scalar& color) {
@@ -228,7 +231,17 @@ void writeObjectMapPng(const std::string& path, const ObjectMap& om) {
     const int l = om.at(x, y);
     return l == 0 ? cv::Vec3b(0, 0, 0) : labelColor(l);
   });
-  for (const ObjectInfo& o : om.objects) {
+  // Numbers on the objects that can carry one: at least kLabelMinCells cells, the largest
+  // kMaxLabels of them (a room's maps hold thousands of noise specks; outlined text costs
+  // about a millisecond a label).
+  std::vector<const ObjectInfo*> labelled;
+  for (const ObjectInfo& o : om.objects)
+    if (o.area >= kLabelMinCells) labelled.push_back(&o);
+  std::stable_sort(labelled.begin(), labelled.end(),
+                   [](const ObjectInfo* a, const ObjectInfo* b) { return a->area > b->area; });
+  if (labelled.size() > kMaxLabels) labelled.resize(kMaxLabels);
+  for (const ObjectInfo* op : labelled) {
+    const ObjectInfo& o = *op;
     const double cx = (o.centroid.x() / om.cell_size - om.i0) * s;
     const double cy = (om.height - (o.centroid.y() / om.cell_size - om.j0)) * s;
     putOutlinedCentred(
