@@ -3,13 +3,11 @@
 
 #include "planesdf/change.hpp"
 
-#include <omp.h>
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <exception>
 #include <functional>
 #include <limits>
 #include <map>
@@ -17,6 +15,7 @@
 #include <tuple>
 #include <utility>
 
+#include "../parallel.hpp"
 #include "planesdf/error.hpp"
 
 namespace planesdf {
@@ -53,22 +52,7 @@ const ChangeRegion& ChangeEvent::primary() const {
 
 namespace {
 
-/// Runs f(0..n-1) on up to `threads` threads (0: all cores), dynamically scheduled; the first
-/// exception thrown by any f is rethrown once all have finished.
-void parallelFor(int n, int threads, const std::function<void(int)>& f) {
-  const int t = threads > 0 ? threads : std::max(1, omp_get_max_threads());
-  std::exception_ptr error;
-#pragma omp parallel for num_threads(t) if (t > 1 && n > 1) schedule(dynamic, 1)
-  for (int i = 0; i < n; ++i) {
-    try {
-      f(i);
-    } catch (...) {
-#pragma omp critical(planesdf_parallel_for_error)
-      if (!error) error = std::current_exception();
-    }
-  }
-  if (error) std::rethrow_exception(error);
-}
+using detail::parallelFor;
 
 /// Planes with |n·n'| below this are not parallel (see computePlaneMaps).
 constexpr double kParallelPlaneCos = 0.7;

@@ -7,6 +7,7 @@
 #include <system_error>
 #include <vector>
 
+#include "../parallel.hpp"
 #include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
@@ -118,8 +119,12 @@ void writeChangeOutputs(const std::string& dir, const ChangeSet& set) {
   const std::string pdir = dir + "/planes";
   std::filesystem::create_directories(pdir, ec);
   if (ec) throw Error(pdir, "cannot create the pictures folder: " + ec.message());
-  for (const PlanePairResult& r : set.pairs) {
-    if (r.source_heights.empty()) continue;
+  // The pairs' pictures side by side (PNG encoding is most of the time).
+  std::vector<const PlanePairResult*> staged;
+  for (const PlanePairResult& r : set.pairs)
+    if (!r.source_heights.empty()) staged.push_back(&r);
+  detail::parallelFor(static_cast<int>(staged.size()), 0, [&](int k) {
+    const PlanePairResult& r = *staged[static_cast<std::size_t>(k)];
     const std::string stem =
         pdir + "/" + side(r.reference_to_current) + "_" + std::to_string(r.match.source_id) +
         "_to_" + side(!r.reference_to_current) + "_" + std::to_string(r.match.target_id) + "_";
@@ -135,7 +140,7 @@ void writeChangeOutputs(const std::string& dir, const ChangeSet& set) {
     writeMaskPng(stem + "cleaned.png", r.change.cleaned, bg, "dilated");
     writeMaskPng(stem + "blobs.png", r.change.blob_mask, bg, "blobs (grown to objects)");
     writeMaskPng(stem + "validated.png", r.validated, bg, "kept by the 3D validation");
-  }
+  });
 }
 
 }  // namespace planesdf
