@@ -7,6 +7,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/tsdf.hpp"
 
@@ -18,11 +19,6 @@ constexpr std::uint64_t kEmptyKey = detail::kEmptyBlockKey;
 // Slab sizes of BlockSlabs: at least this many blocks, at most one huge page.
 constexpr std::size_t kMinSlabBlocks = 16;
 constexpr std::size_t kMaxSlabBlocks = detail::kHugePageBytes / sizeof(TsdfBlock);
-
-inline int floorToInt(double x) {
-  const int i = static_cast<int>(x);
-  return i - (x < i ? 1 : 0);
-}
 
 }  // namespace
 
@@ -262,7 +258,8 @@ void TsdfVolume::clear() {
 
 Eigen::Vector3i TsdfVolume::voxelIndexAt(const Eigen::Vector3d& p) const {
   const Eigen::Vector3d g = p / voxel_size_;
-  return Eigen::Vector3i(floorToInt(g.x()), floorToInt(g.y()), floorToInt(g.z()));
+  return Eigen::Vector3i(detail::floorToInt(g.x()), detail::floorToInt(g.y()),
+                         detail::floorToInt(g.z()));
 }
 
 Eigen::Vector3i TsdfVolume::blockIndexAt(const Eigen::Vector3d& p) const {
@@ -275,7 +272,8 @@ std::optional<TsdfSample> TsdfVolume::sample(const Eigen::Vector3d& p, float min
   };
   // Voxel centres sit at (i + 0.5) * voxel_size: the 8 neighbours of p start at floor(g).
   const Eigen::Vector3d g = p / voxel_size_ - Eigen::Vector3d::Constant(0.5);
-  const Eigen::Vector3i base(floorToInt(g.x()), floorToInt(g.y()), floorToInt(g.z()));
+  const Eigen::Vector3i base(detail::floorToInt(g.x()), detail::floorToInt(g.y()),
+                             detail::floorToInt(g.z()));
   const Eigen::Vector3d f = g - base.cast<double>();
   std::array<const TsdfVoxel*, 8> n{};
   const bool one_block = (base.x() & 7) < 7 && (base.y() & 7) < 7 && (base.z() & 7) < 7;
