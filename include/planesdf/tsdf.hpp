@@ -18,6 +18,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <utility>
@@ -357,12 +358,22 @@ class DepthFrameAnalysis {
   /// threads. Throws planesdf::Error on invalid intrinsics, a depth buffer of the wrong size, an
   /// invalid fusion configuration or truncation <= 0.
   void analyse(const DepthFrame& frame, double truncation, const Config& cfg);
+  /// The same analysis, running `alongside` on one of cfg's threads while the others start the
+  /// per-pixel pass; that thread joins the pass when `alongside` returns. For the caller's own
+  /// per-frame work that needs nothing of the analysis (Map::integrate tracks planes so): both
+  /// share the threads without either waiting for the other. `alongside` runs once, unless the
+  /// frame or the configuration is rejected first; an exception it throws is rethrown after
+  /// the pass. The analysis is the same as analyse(frame, truncation, cfg) for any thread count.
+  void analyse(const DepthFrame& frame, double truncation, const Config& cfg,
+               const std::function<void()>& alongside);
   /// True before the first analyse().
   bool empty() const;
 
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+  void analyseImpl(const DepthFrame& frame, double truncation, const Config& cfg,
+                   const std::function<void()>* alongside);
   friend IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& analysis,
                                           const Pose& T_local_camera, const Config& cfg);
 };

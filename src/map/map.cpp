@@ -2,10 +2,14 @@
 #include "planesdf/memory.hpp"
 
 #include <omp.h>
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
 
 #include <chrono>
 #include <cmath>
 #include <exception>
+#include <functional>
 
 #include "map_internal.hpp"
 #include "planesdf/config_io.hpp"
@@ -138,6 +142,74 @@ void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
   }
 }
 
+/// Heights within `slack` of a band: 1 mm plus 4e-7 of the coordinates' magnitudes, several
+/// times the rounding error of the single-precision dot product, so that the pre-test never
+/// drops a point the exact (double) test keeps.
+inline float bandSlack(float x, float y, float z, float abs_d) {
+  return 1e-3f + 4e-7f * (std::abs(x) + std::abs(y) + std::abs(z) + abs_d);
+}
+
+/// maybe[i] = 1 when point i of the packed xyz array (m points) may lie in some band, else 0;
+/// NaN points give 0. The reference code for bandPretestAvx2.
+void bandPretestScalar(const float* xyz, int m, const std::vector<detail::BandF>& bands,
+                       std::uint8_t* maybe) {
+  for (int i = 0; i < m; ++i) {
+    const float x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
+    std::uint8_t any = 0;
+    for (const detail::BandF& b : bands) {
+      const float h = b.nx * x + b.ny * y + b.nz * z + b.d;
+      const float slack = bandSlack(x, y, z, std::abs(b.d));
+      any = static_cast<std::uint8_t>(any | ((h >= b.lo - slack) & (h <= b.hi + slack)));
+    }
+    maybe[i] = any;
+  }
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/// bandPretestScalar 8 points at a time (the packed xyz of 8 points de-interleaved by blends
+/// and permutes). The margin covers the difference between the two, so both keep every point
+/// the exact test keeps.
+__attribute__((target("avx2"))) void bandPretestAvx2(const float* xyz, int m,
+                                                     const std::vector<detail::BandF>& bands,
+                                                     std::uint8_t* maybe) {
+  const __m256 sign = _mm256_set1_ps(-0.0f);
+  const __m256i px = _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5);
+  const __m256i py = _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6);
+  const __m256i pz = _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7);
+  int i = 0;
+  for (; i + 8 <= m; i += 8) {
+    const float* p = xyz + 3 * i;
+    const __m256 a0 = _mm256_loadu_ps(p), a1 = _mm256_loadu_ps(p + 8), a2 = _mm256_loadu_ps(p + 16);
+    const __m256 x =
+        _mm256_permutevar8x32_ps(_mm256_blend_ps(_mm256_blend_ps(a0, a1, 0x92), a2, 0x24), px);
+    const __m256 y =
+        _mm256_permutevar8x32_ps(_mm256_blend_ps(_mm256_blend_ps(a0, a1, 0x24), a2, 0x49), py);
+    const __m256 z =
+        _mm256_permutevar8x32_ps(_mm256_blend_ps(_mm256_blend_ps(a0, a1, 0x49), a2, 0x92), pz);
+    const __m256 mag =
+        _mm256_add_ps(_mm256_add_ps(_mm256_andnot_ps(sign, x), _mm256_andnot_ps(sign, y)),
+                      _mm256_andnot_ps(sign, z));
+    int any = 0;
+    for (const detail::BandF& b : bands) {
+      const __m256 h =
+          _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(b.nx), x),
+                                                    _mm256_mul_ps(_mm256_set1_ps(b.ny), y)),
+                                      _mm256_mul_ps(_mm256_set1_ps(b.nz), z)),
+                        _mm256_set1_ps(b.d));
+      const __m256 slack = _mm256_add_ps(
+          _mm256_set1_ps(1e-3f),
+          _mm256_mul_ps(_mm256_set1_ps(4e-7f), _mm256_add_ps(mag, _mm256_set1_ps(std::abs(b.d)))));
+      const __m256 in =
+          _mm256_and_ps(_mm256_cmp_ps(h, _mm256_sub_ps(_mm256_set1_ps(b.lo), slack), _CMP_GE_OQ),
+                        _mm256_cmp_ps(h, _mm256_add_ps(_mm256_set1_ps(b.hi), slack), _CMP_LE_OQ));
+      any |= _mm256_movemask_ps(in);
+    }
+    for (int l = 0; l < 8; ++l) maybe[i + l] = static_cast<std::uint8_t>((any >> l) & 1);
+  }
+  if (i < m) bandPretestScalar(xyz + 3 * i, m - i, bands, maybe + i);
+}
+#endif
+
 /// Adds what one plane volume's integration did to the call's stats.
 void addResult(IntegrateStats& stats, int plane_id, const IntegrationResult& r) {
   if (!r.updated_blocks.empty()) stats.updated_planes.push_back(plane_id);
@@ -148,6 +220,15 @@ void addResult(IntegrateStats& stats, int plane_id, const IntegrationResult& r) 
 }
 
 }  // namespace
+
+void detail::bandPretest(const float* xyz, int m, const std::vector<BandF>& bands,
+                         std::uint8_t* maybe, bool simd) {
+#if defined(__x86_64__) && defined(__GNUC__)
+  static const bool avx2 = __builtin_cpu_supports("avx2");
+  if (simd && avx2) return bandPretestAvx2(xyz, m, bands, maybe);
+#endif
+  bandPretestScalar(xyz, m, bands, maybe);
+}
 
 bool detail::CellBitSet::insert(std::uint64_t key) {
   const std::uint64_t brick = brickOf(key);
@@ -215,19 +296,39 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   auto& lists = scratch;  // the caller's (thread_local names the worker's own in the region)
   lists.resize(static_cast<std::size_t>(threads));
   for (auto& l : lists) l.clear();
+  // A single-precision pre-test per chunk of points (bandPretest, 8 points at a time with
+  // AVX2) marks the points that may be in some plane's band; only those take the exact test.
+  // Its margin never drops a point the exact test keeps: the kept points are the same.
+  std::vector<detail::BandF> bands;
+  for (const auto& ps : planes_) {
+    const Eigen::Vector3f nf = ps.plane.normal.cast<float>();
+    bands.push_back({nf.x(), nf.y(), nf.z(), static_cast<float>(ps.plane.offset),
+                     static_cast<float>(h_lo), static_cast<float>(cfg_.fuse_band)});
+  }
+  constexpr std::ptrdiff_t kChunk = 512;
+  const std::ptrdiff_t chunks = (n + kChunk - 1) / kChunk;
 #pragma omp parallel num_threads(threads) if (threads > 1)
   {
     auto& mine = lists[static_cast<std::size_t>(omp_get_thread_num())];
+    alignas(64) std::uint8_t maybe[kChunk];
 #pragma omp for schedule(static)
-    for (std::ptrdiff_t i = 0; i < n; ++i) {
-      const Eigen::Vector3f& p = pts[static_cast<std::size_t>(i)];
-      if (!PointCloud::isValid(p)) continue;
-      for (const auto& ps : planes_) {
-        const double h = ps.plane.signedDistance(p.cast<double>());
-        if (h >= h_lo && h <= cfg_.fuse_band) {
-          mine.emplace_back(static_cast<std::uint32_t>(i),
-                            dedup ? detail::cellKeyOf(p, cfg_.point_cell) : 0);
-          break;
+    for (std::ptrdiff_t c = 0; c < chunks; ++c) {
+      const std::ptrdiff_t begin = c * kChunk;
+      const int m = static_cast<int>(std::min(kChunk, n - begin));
+      const float* xyz = pts[static_cast<std::size_t>(begin)].data();
+      detail::bandPretest(xyz, m, bands, maybe, cfg_.simd);
+      for (int i = 0; i < m; ++i) {
+        if (!maybe[i]) continue;  // NaN (invalid) points fail both comparisons
+        const std::size_t idx = static_cast<std::size_t>(begin + i);
+        const Eigen::Vector3f& p = pts[idx];
+        if (!PointCloud::isValid(p)) continue;
+        for (const auto& ps : planes_) {
+          const double h = ps.plane.signedDistance(p.cast<double>());
+          if (h >= h_lo && h <= cfg_.fuse_band) {
+            mine.emplace_back(static_cast<std::uint32_t>(idx),
+                              dedup ? detail::cellKeyOf(p, cfg_.point_cell) : 0);
+            break;
+          }
         }
       }
     }
@@ -309,46 +410,22 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
                          camera_to_world.translation());
     }
   };
-  // The per-pixel pass of fusion (scratch reused per thread) does not depend on the planes, and
-  // plane tracking is serial: with two threads or more they run side by side, the analysis on
-  // one thread (same results: both only read the frame).
+  // The per-pixel pass of fusion (scratch reused per thread) does not depend on the planes.
+  // Plane tracking, which is serial, and then the object points of the frame, which need the
+  // tracked planes, run on one thread while the others start the pass; that thread joins the
+  // pass when done (same results for any thread count: all of them only read the frame).
   thread_local DepthFrameAnalysis scratch;
   DepthFrameAnalysis& analysis = scratch;  // the caller's (see keepPoints)
-  if (threadCount(cfg_) > 1) {
-    Config one_thread = cfg_;
-    one_thread.threads = 1;
-    std::exception_ptr failure[2];
-#pragma omp parallel sections num_threads(2)
-    {
-#pragma omp section
-      {
-        try {
-          track();
-        } catch (...) {
-          failure[0] = std::current_exception();
-        }
-      }
-#pragma omp section
-      {
-        try {
-          analysis.analyse(frame, cfg_.truncation(), one_thread);
-        } catch (...) {
-          failure[1] = std::current_exception();
-        }
-      }
-    }
-    for (const auto& f : failure)
-      if (f) std::rethrow_exception(f);
-  } else {
-    track();
-    analysis.analyse(frame, cfg_.truncation(), cfg_);
-  }
   IntegrateStats created;
-  syncPlanes(created);
+  const std::function<void()> before_fusion = [&] {
+    track();
+    syncPlanes(created);
+    keepPoints(pts, true);
+  };
+  analysis.analyse(frame, cfg_.truncation(), cfg_, before_fusion);
   IntegrateStats stats;
   if (!planes_.empty()) stats = fuseDepth(analysis, camera_to_world, cfg_);
   stats.new_planes = std::move(created.new_planes);
-  keepPoints(pts, true);
   ++frames_;
   stats.milliseconds = msSince(t0);
   return stats;

@@ -7,6 +7,8 @@
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <exception>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <string>
@@ -591,8 +593,11 @@ void dilateMin(std::vector<float>& map, int w, int h, int r) {
 /// measurements, with only grazing pixels flagged carve-only; edge and silhouette distances;
 /// the guard and largest-depth tiles) and `k_exact` (per pixel k, 0 when the pixel is invalid
 /// or grazing).
+/// `alongside` (may be null) runs on one thread while the others start the rows; that thread
+/// then joins them. Its exception, if any, is rethrown after the pass.
 void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int threads,
-                   FrameMeasurements& fm, std::vector<float>& k_exact) {
+                   FrameMeasurements& fm, std::vector<float>& k_exact,
+                   const std::function<void()>* alongside) {
   const int W = cam.width, H = cam.height;
   const float footprint = 1.0f / std::min(cam.fx, cam.fy);  // pixel size at unit depth
   std::vector<float>& xn = fm.xn;
@@ -613,15 +618,30 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
   fm.tile_max_depth.assign(fm.guard.size(), -std::numeric_limits<float>::infinity());
   fm.edge_dist.resize(static_cast<std::size_t>(W) * H + kGatherPadding);
   fm.silhouette_dist.resize(static_cast<std::size_t>(W) * H + kGatherPadding);
-  std::size_t n_valid = 0;
-  double sum_depth = 0.0;
-#pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : n_valid, sum_depth)
+  // Valid pixels and their depth sum per row of tiles, added up in order afterwards (the same
+  // mean depth for any thread count and schedule).
+  std::vector<std::size_t> row_valid(static_cast<std::size_t>(fm.tiles_y), 0);
+  std::vector<double> row_depth(static_cast<std::size_t>(fm.tiles_y), 0.0);
+  std::exception_ptr alongside_failure;
+#pragma omp parallel num_threads(threads) if (threads > 1)
   {
+#pragma omp single nowait
+    {
+      if (alongside != nullptr) {
+        try {
+          (*alongside)();
+        } catch (...) {
+          alongside_failure = std::current_exception();
+        }
+      }
+    }
     std::vector<int> edge_cols, silhouette_cols;
     edge_cols.reserve(static_cast<std::size_t>(W));
     silhouette_cols.reserve(static_cast<std::size_t>(W));
 #pragma omp for schedule(dynamic, 1)
     for (int ty = 0; ty < fm.tiles_y; ++ty) {
+      std::size_t n_valid = 0;
+      double sum_depth = 0.0;
       float* guard_row = fm.guard.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
       float* max_depth_row = fm.tile_max_depth.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
       for (int v = ty * kGuardTile; v < std::min(H, (ty + 1) * kGuardTile); ++v) {
@@ -668,7 +688,16 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
         rowEdgeDistance(silhouette_cols.data(), static_cast<int>(silhouette_cols.size()), W,
                         fm.silhouette_dist.data() + static_cast<std::size_t>(v) * W);
       }
+      row_valid[static_cast<std::size_t>(ty)] = n_valid;
+      row_depth[static_cast<std::size_t>(ty)] = sum_depth;
     }
+  }
+  if (alongside_failure) std::rethrow_exception(alongside_failure);
+  std::size_t n_valid = 0;
+  double sum_depth = 0.0;
+  for (int ty = 0; ty < fm.tiles_y; ++ty) {
+    n_valid += row_valid[static_cast<std::size_t>(ty)];
+    sum_depth += row_depth[static_cast<std::size_t>(ty)];
   }
   columnEdgeDistance(fm.edge_dist.data(), W, H);
   columnEdgeDistance(fm.silhouette_dist.data(), W, H);
@@ -1024,6 +1053,9 @@ struct RowKernel {
   float fx, fy, cx, cy, inv_fx, inv_fy, z_min, z_max, w_lim, h_lim;
   float trunc, behind, guard_sdf, edge_scale, depth_scale, max_weight;
   bool guard_behind;
+  /// False when no tile the block's voxels project to has an edge near enough for the
+  /// silhouette guard (it cannot skip a voxel of this block; its gathers are left out).
+  bool guard_near = true;
 };
 
 /// Fuses the row of kTsdfBlockSide voxels whose first centre is (rx, ry, rz) in camera
@@ -1054,7 +1086,7 @@ inline void fuseRowScalar(const RowKernel& k, float rx, float ry, float rz, Tsdf
     float sdf = cos_ray * q;
     if (sdf < -k.behind) continue;  // deeper behind the surface than the band behind it
     // Silhouette guard: |sdf| (at most trunc) against the lateral distance to an edge.
-    if (std::fabs(sdf) > k.guard_sdf &&
+    if (k.guard_near && std::fabs(sdf) > k.guard_sdf &&
         k.guard[(vi >> kGuardTileShift) * k.tiles_x + (ui >> kGuardTileShift)] <= zc + k.trunc) {
       if (sdf > 0.0f) {
         if (std::min(sdf, k.trunc) * k.edge_scale > k.edge_dist[pix] * zc) continue;
@@ -1144,7 +1176,7 @@ __attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, f
   // Silhouette guard.
   const __m256 abs_sdf = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), sdf);
   __m256 g = _mm256_and_ps(m, _mm256_cmp_ps(abs_sdf, _mm256_set1_ps(k.guard_sdf), _CMP_GT_OQ));
-  if (_mm256_movemask_ps(g) != 0) {
+  if (k.guard_near && _mm256_movemask_ps(g) != 0) {
     const __m256i tile = _mm256_add_epi32(
         _mm256_mullo_epi32(_mm256_srli_epi32(vi, kGuardTileShift), _mm256_set1_epi32(k.tiles_x)),
         _mm256_srli_epi32(ui, kGuardTileShift));
@@ -1251,45 +1283,50 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   // Pixels per metre of lateral distance at unit depth (the smaller focal length: the lateral
   // distance is never overestimated).
   const float edge_scale = std::min(fx, fy);
-  const RowKernel kernel{fm.pixels.data(),
-                         fm.guard.data(),
-                         fm.edge_dist.data(),
-                         fm.silhouette_dist.data(),
-                         prm.in_band,
-                         W,
-                         H,
-                         fm.tiles_x,
-                         ax.x(),
-                         ax.y(),
-                         ax.z(),
-                         fx,
-                         fy,
-                         cx,
-                         cy,
-                         1.0f / fx,
-                         1.0f / fy,
-                         cam.z_min,
-                         cam.z_max,
-                         w_lim,
-                         h_lim,
-                         trunc,
-                         kBehindFraction * trunc,
-                         kGuardSdf * prm.voxel,
-                         edge_scale,
-                         fm.depth_scale,
-                         prm.max_weight,
-                         prm.guard_behind};
+  RowKernel kernel{fm.pixels.data(),
+                   fm.guard.data(),
+                   fm.edge_dist.data(),
+                   fm.silhouette_dist.data(),
+                   prm.in_band,
+                   W,
+                   H,
+                   fm.tiles_x,
+                   ax.x(),
+                   ax.y(),
+                   ax.z(),
+                   fx,
+                   fy,
+                   cx,
+                   cy,
+                   1.0f / fx,
+                   1.0f / fy,
+                   cam.z_min,
+                   cam.z_max,
+                   w_lim,
+                   h_lim,
+                   trunc,
+                   kBehindFraction * trunc,
+                   kGuardSdf * prm.voxel,
+                   edge_scale,
+                   fm.depth_scale,
+                   prm.max_weight,
+                   prm.guard_behind};
 
   // Occlusion bound. Over the pixels the block's voxel centres can project to (nearest pixel,
   // inside the projected box of its corner centres), the largest measured depth dmax. A voxel
   // deeper than dmax + trunc + the tangent-plane term (|n'| * the voxel's lateral offset from its
   // pixel's ray, at most kTangentSlackPx pixel footprints) has q < -trunc: untouched. Slices of
   // the block beyond that are skipped whole (the result is identical).
+  const float near_dz = (kTsdfBlockSide - 1) * (std::min(0.0f, ax.z()) + std::min(0.0f, ay.z()));
   float occluded_from = kInf;
+  // Nearest pixel of image coordinate x on an axis of n pixels, clamped to the image.
+  const auto pixel = [](float x, int n) {
+    return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
+  };
+  bool in_front = true;
   {
     const float e = static_cast<float>(kTsdfBlockSide - 1);
     float umin = kInf, umax = -kInf, vmin = kInf, vmax = -kInf, zmax = -kInf;
-    bool in_front = true;
     for (int i = 0; i < 8; ++i) {
       const Eigen::Vector3f p =
           c0 + ((i & 1) ? e : 0.0f) * ax + ((i & 2) ? e : 0.0f) * ay + ((i & 4) ? e : 0.0f) * az;
@@ -1306,24 +1343,35 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
     }
     if (in_front) {
       if (umax < -0.5f || umin >= w_lim || vmax < -0.5f || vmin >= h_lim) return out;
-      const auto pixel = [](float x, int n) {
-        return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
-      };
       const int tx0 = pixel(umin, W) >> kGuardTileShift, tx1 = pixel(umax, W) >> kGuardTileShift;
       const int ty0 = pixel(vmin, H) >> kGuardTileShift, ty1 = pixel(vmax, H) >> kGuardTileShift;
-      float dmax = -kInf;
+      float dmax = -kInf, gmin = kInf;
       for (int ty = ty0; ty <= ty1; ++ty)
-        for (int tx = tx0; tx <= tx1; ++tx)
-          dmax = std::max(dmax, fm.tile_max_depth[static_cast<std::size_t>(ty) * fm.tiles_x + tx]);
+        for (int tx = tx0; tx <= tx1; ++tx) {
+          const std::size_t t = static_cast<std::size_t>(ty) * fm.tiles_x + tx;
+          dmax = std::max(dmax, fm.tile_max_depth[t]);
+          gmin = std::min(gmin, fm.guard[t]);
+        }
+      // The guard acts where its tile's edge depth <= zc + trunc; zc <= zmax (plus rounding).
+      kernel.guard_near = gmin <= zmax + trunc + 1e-3f;
       occluded_from = dmax + trunc + kTangentSlackPx * zmax / edge_scale + 1e-3f;
-      // The measurements the voxel loop will gather, requested ahead (one cache line = 8 px).
-      const int u0 = pixel(umin, W), u1 = pixel(umax, W);
-      for (int v = pixel(vmin, H); v <= pixel(vmax, H); ++v)
-        for (int u = u0; u <= u1 + 7; u += 8)
-          __builtin_prefetch(fm.pixels.data() + static_cast<std::size_t>(v) * W + std::min(u, u1));
+      // The measurements the voxel loop will gather, requested ahead (one cache line = 8 px),
+      // unless every slice of the block is occluded (see below).
+      bool any_slice = false;
+      for (int z = 0; z < kTsdfBlockSide && !any_slice; ++z) {
+        const float h = static_cast<float>(c0_local.z() + z * vs);
+        any_slice = h >= prm.band.vox_lo && h <= prm.band.vox_hi &&
+                    !(c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from);
+      }
+      if (any_slice) {
+        const int u0 = pixel(umin, W), u1 = pixel(umax, W);
+        for (int v = pixel(vmin, H); v <= pixel(vmax, H); ++v)
+          for (int u = u0; u <= u1 + 7; u += 8)
+            __builtin_prefetch(fm.pixels.data() + static_cast<std::size_t>(v) * W +
+                               std::min(u, u1));
+      }
     }
   }
-  const float near_dz = (kTsdfBlockSide - 1) * (std::min(0.0f, ax.z()) + std::min(0.0f, ay.z()));
   // True when a voxel centre of slice z projects into the image within the depth range.
   const auto sliceInView = [&](int z) {
     for (int y = 0; y < kTsdfBlockSide; ++y)
@@ -1468,6 +1516,16 @@ DepthFrameAnalysis& DepthFrameAnalysis::operator=(const DepthFrameAnalysis& o) {
 }
 
 void DepthFrameAnalysis::analyse(const DepthFrame& frame, double truncation, const Config& cfg) {
+  analyseImpl(frame, truncation, cfg, nullptr);
+}
+
+void DepthFrameAnalysis::analyse(const DepthFrame& frame, double truncation, const Config& cfg,
+                                 const std::function<void()>& alongside) {
+  analyseImpl(frame, truncation, cfg, &alongside);
+}
+
+void DepthFrameAnalysis::analyseImpl(const DepthFrame& frame, double truncation, const Config& cfg,
+                                     const std::function<void()>* alongside) {
   validateFrame(frame);
   validateFusionConfig(cfg);
   if (!(std::isfinite(truncation) && truncation > 0.0))
@@ -1481,7 +1539,7 @@ void DepthFrameAnalysis::analyse(const DepthFrame& frame, double truncation, con
   a.z_min = cam.z_min;
   a.z_max = cam.z_max;
   a.depth = frame.depth;
-  analysePixels(frame, cam, a.truncation, a.threads, a.fm, a.k);
+  analysePixels(frame, cam, a.truncation, a.threads, a.fm, a.k, alongside);
 }
 
 bool DepthFrameAnalysis::empty() const {

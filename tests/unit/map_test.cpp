@@ -6,6 +6,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <set>
 
@@ -322,3 +323,73 @@ TEST(CellBitSet, HoldsExactlyTheInsertedCells) {
 }
 
 }  // namespace
+
+TEST(BandPretest, NeverDropsAPointInsideABandAndDropsThoseWellOutside) {
+  // Planes of random orientation and offsets up to 10 km; points at random places up to 10 km
+  // away, at heights just inside and just outside the band edges (down to 1e-9 m) and well
+  // outside. Every point whose exact (double) height is in a band must pass, with and without
+  // AVX2; points 5 cm or more outside every band must not.
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  const double lo = 0.005, hi = 0.30;
+  for (int trial = 0; trial < 20; ++trial) {
+    struct PlaneD {
+      Eigen::Vector3d n;
+      double d;
+    };
+    std::vector<PlaneD> planes;
+    std::vector<detail::BandF> bands;
+    const double scale = trial < 10 ? 5.0 : 1e4;
+    for (int k = 0; k < 1 + trial % 3; ++k) {
+      const Eigen::Vector3d n = Eigen::Vector3d(unit(rng), unit(rng), unit(rng)).normalized();
+      const double d = unit(rng) * scale;
+      planes.push_back({n, d});
+      const Eigen::Vector3f nf = n.cast<float>();
+      bands.push_back({nf.x(), nf.y(), nf.z(), static_cast<float>(d), static_cast<float>(lo),
+                       static_cast<float>(hi)});
+    }
+    const double offsets[] = {-1e-9, 1e-9, -1e-6, 1e-6, -1e-4, 1e-4, 0.0};
+    std::vector<Eigen::Vector3f> pts;
+    for (int i = 0; i < 1001; ++i) {  // not a multiple of 8: the scalar tail runs too
+      const PlaneD& pl = planes[static_cast<std::size_t>(i) % planes.size()];
+      const double edge = (i % 4 < 2) ? lo : hi;
+      const double off = (i % 5 == 4) ? (i % 2 ? 0.05 : -0.05) : offsets[i % 7];
+      const Eigen::Vector3d q(unit(rng) * scale, unit(rng) * scale, unit(rng) * scale);
+      // The point at height edge + off above plane pl (then rounded to float).
+      const Eigen::Vector3d p = q - (pl.n.dot(q) + pl.d - (edge + off)) * pl.n;
+      pts.push_back(p.cast<float>());
+    }
+    pts.push_back(Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+    const int m = static_cast<int>(pts.size());
+    std::vector<std::uint8_t> avx(m, 7), scalar(m, 7);
+    detail::bandPretest(pts.front().data(), m, bands, avx.data(), true);
+    detail::bandPretest(pts.front().data(), m, bands, scalar.data(), false);
+    std::size_t inside = 0, far = 0;
+    for (int i = 0; i < m; ++i) {
+      const Eigen::Vector3d p = pts[static_cast<std::size_t>(i)].cast<double>();
+      bool in = false, all_far = p.allFinite();
+      for (const PlaneD& pl : planes) {
+        const double h = pl.n.dot(p) + pl.d;
+        in = in || (h >= lo && h <= hi);
+        all_far = all_far && (h < lo - 0.04 || h > hi + 0.04);
+      }
+      ASSERT_LE(avx[i], 1);
+      ASSERT_LE(scalar[i], 1);
+      if (in) {
+        ++inside;
+        EXPECT_EQ(avx[i], 1) << "trial " << trial << " point " << i;
+        EXPECT_EQ(scalar[i], 1) << "trial " << trial << " point " << i;
+      }
+      if (all_far && scale < 100) {  // the margin grows with the coordinates (4e-7 of 3e4 m)
+        ++far;
+        EXPECT_EQ(avx[i], 0) << "trial " << trial << " point " << i;
+        EXPECT_EQ(scalar[i], 0) << "trial " << trial << " point " << i;
+      }
+    }
+    EXPECT_EQ(avx[m - 1], 0);  // NaN
+    EXPECT_GT(inside, 300u);
+    if (scale < 100) {
+      EXPECT_GT(far, 80u);
+    }
+  }
+}

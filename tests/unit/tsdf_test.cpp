@@ -7,9 +7,11 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <random>
 #include <set>
+#include <stdexcept>
 #include <vector>
 
 #include "planesdf/error.hpp"
@@ -732,6 +734,55 @@ TEST(TsdfFusion, OneFrameAnalysisSharedByTwoVolumesEqualsFusingEachAlone) {
   Config near = cfg;
   near.max_depth = 2.0;
   EXPECT_THROW(integrateDepth(a2, analysis, Pose::Identity(), near), Error);
+}
+
+TEST(TsdfFusion, AnalysisWithATaskAlongsideIsTheSameAndRunsItOnce) {
+  // analyse(frame, ..., alongside) shares the threads with the caller's task: the analysis
+  // (checked through fusion: same volume byte for byte) is that of analyse(frame, ...) on one
+  // thread, for one and two threads; the task runs exactly once per call, and its exception
+  // comes out of analyse after the pass (a later call works).
+  const Scene scene = sphereAndBox();
+  for (const int threads : {1, 2}) {
+    const Config cfg = testConfig(threads);
+    TsdfVolume plain(cfg), shared(cfg);
+    DepthFrameAnalysis a, b;
+    int runs = 0;
+    double work = 0.0;
+    const std::function<void()> task = [&] {
+      ++runs;
+      for (int i = 1; i < 200000; ++i) work += 1.0 / i;  // about a millisecond
+    };
+    int frames = 0;
+    for (const Pose& T : ring(4, 0.8, 0.6, kTarget)) {
+      const DepthFrame f = render(scene, smallCamera(), T);
+      a.analyse(f, plain.truncation(), testConfig(1));
+      b.analyse(f, shared.truncation(), cfg, task);
+      ++frames;
+      EXPECT_EQ(runs, frames);
+      const IntegrationResult ra = integrateDepth(plain, a, T, cfg);
+      const IntegrationResult rb = integrateDepth(shared, b, T, cfg);
+      EXPECT_EQ(ra.num_voxel_updates, rb.num_voxel_updates);
+      EXPECT_EQ(ra.updated_blocks, rb.updated_blocks);
+    }
+    EXPECT_GT(work, 0.0);
+    EXPECT_GT(plain.numBlocks(), 50u);
+    EXPECT_TRUE(sameVolumes(plain, shared)) << threads << " threads";
+    const DepthFrame f = render(scene, smallCamera(), ring(4, 0.8, 0.6, kTarget)[0]);
+    const std::function<void()> failing = [] { throw std::runtime_error("tracking failed"); };
+    try {
+      b.analyse(f, shared.truncation(), cfg, failing);
+      ADD_FAILURE() << "no exception";
+    } catch (const std::runtime_error& e) {
+      EXPECT_STREQ(e.what(), "tracking failed");
+    }
+    b.analyse(f, shared.truncation(), cfg, task);
+    EXPECT_EQ(runs, frames + 1);
+    // A frame refused by the analysis is refused before the task runs.
+    DepthFrame bad = f;
+    bad.depth.resize(10);
+    EXPECT_THROW(b.analyse(bad, shared.truncation(), cfg, task), Error);
+    EXPECT_EQ(runs, frames + 1);
+  }
 }
 
 TEST(TsdfFusion, VoxelsHiddenBehindAnOccluderAreUntouched) {
