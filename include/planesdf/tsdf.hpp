@@ -238,6 +238,9 @@ class TsdfVolume {
   /// Block by slot, slot in [0, numBlocks()). Slots follow allocation order and never change.
   const TsdfBlock& block(std::size_t slot) const { return *blocks_[slot]; }
   TsdfBlock& block(std::size_t slot) { return *blocks_[slot]; }
+  /// The index of the block in `slot`, from a compact array (scans over many blocks' indices
+  /// read 12 bytes per block instead of one cache line behind each block's voxels).
+  const Eigen::Vector3i& blockIndex(std::size_t slot) const { return indices_[slot]; }
   /// Calls f(const TsdfBlock&) for every block, in slot order.
   template <class F>
   void forEachBlock(F&& f) const {
@@ -311,7 +314,8 @@ class TsdfVolume {
  private:
   double voxel_size_;
   double truncation_;
-  std::vector<TsdfBlock*> blocks_;  ///< by slot, into slabs_
+  std::vector<TsdfBlock*> blocks_;        ///< by slot, into slabs_
+  std::vector<Eigen::Vector3i> indices_;  ///< by slot: blocks_[slot]->index
   detail::BlockSlabs slabs_;
   BlockHashMap map_;
   Eigen::Vector3i lo_ = Eigen::Vector3i::Zero();

@@ -98,7 +98,7 @@ class RecentKeys {
 
 /// A dense grid of the block cells around the frame's frustum (per frame, per volume): 1 where a
 /// block is allocated or was collected for allocation by any thread, else 0. Lookups that would
-/// hash a block key become one byte read. Bytes are relaxed atomics: threads may both see 0 and
+/// hash a block key become one byte read, with relaxed atomic builtins: threads may both see 0 and
 /// both collect a block (their key lists are merged without duplicates).
 class BlockGrid {
  public:
@@ -116,21 +116,21 @@ class BlockGrid {
     dims_ = dims;
     size_ = static_cast<std::size_t>(cells);
     if (capacity_ < size_) {
-      cells_.reset(new std::atomic<std::uint8_t>[size_]);
+      cells_.reset(new std::uint8_t[size_]);
       capacity_ = size_;
     }
-    for (std::size_t i = 0; i < size_; ++i) cells_[i].store(0, std::memory_order_relaxed);
+    std::memset(cells_.get(), 0, size_);  // before any thread reads the grid
     if (cells <= static_cast<double>(vol.numBlocks())) {
       for (int z = lo.z(); z <= hi.z(); ++z)
         for (int y = lo.y(); y <= hi.y(); ++y)
           for (int x = lo.x(); x <= hi.x(); ++x) {
             const Eigen::Vector3i b(x, y, z);
-            if (vol.blockSlot(b) >= 0) cells_[index(b)].store(1, std::memory_order_relaxed);
+            if (vol.blockSlot(b) >= 0) cells_[index(b)] = 1;
           }
     } else {
       for (std::size_t sl = 0; sl < vol.numBlocks(); ++sl) {
-        const std::ptrdiff_t i = find(vol.block(sl).index);
-        if (i >= 0) cells_[i].store(1, std::memory_order_relaxed);
+        const std::ptrdiff_t i = find(vol.blockIndex(sl));
+        if (i >= 0) cells_[i] = 1;
       }
     }
   }
@@ -146,8 +146,8 @@ class BlockGrid {
       return -1;
     return index(b);
   }
-  bool known(std::ptrdiff_t i) const { return cells_[i].load(std::memory_order_relaxed) != 0; }
-  void mark(std::ptrdiff_t i) { cells_[i].store(1, std::memory_order_relaxed); }
+  bool known(std::ptrdiff_t i) const { return __atomic_load_n(&cells_[i], __ATOMIC_RELAXED) != 0; }
+  void mark(std::ptrdiff_t i) { __atomic_store_n(&cells_[i], std::uint8_t{1}, __ATOMIC_RELAXED); }
 
  private:
   static constexpr std::size_t kMaxCells = std::size_t{1} << 22;
@@ -157,7 +157,9 @@ class BlockGrid {
   }
   Eigen::Vector3i lo_ = Eigen::Vector3i::Zero(), dims_ = Eigen::Vector3i::Zero();
   std::size_t size_ = 0, capacity_ = 0;
-  std::unique_ptr<std::atomic<std::uint8_t>[]> cells_;
+  /// Accessed with relaxed atomic builtins while threads share the grid (plain writes in
+  /// reset, before they do).
+  std::unique_ptr<std::uint8_t[]> cells_;
 };
 
 /// Collects, per thread, the keys of blocks that are not in the volume yet (looked up in the
@@ -957,7 +959,7 @@ std::vector<std::uint32_t> frustumCandidates(const TsdfVolume& vol, const Camera
     std::sort(slots.begin(), slots.end());
   } else {
     for (std::size_t s = 0; s < vol.numBlocks(); ++s) {
-      const Eigen::Vector3i& b = vol.block(s).index;
+      const Eigen::Vector3i& b = vol.blockIndex(s);
       if ((b.array() >= blo.array()).all() && (b.array() <= bhi.array()).all())
         slots.push_back(static_cast<std::uint32_t>(s));
     }
@@ -977,8 +979,8 @@ std::vector<std::uint32_t> imageOrder(const TsdfVolume& vol,
   const std::int64_t behind = static_cast<std::int64_t>(tiles_y) * tiles_x;  // the last bucket
   std::vector<std::int64_t> keyed(slots.size());
   for (std::size_t i = 0; i < slots.size(); ++i) {
-    const Eigen::Vector3d c_local = vol.block(slots[i]).index.cast<double>() * vol.blockSize() +
-                                    Eigen::Vector3d::Constant(half);
+    const Eigen::Vector3d c_local =
+        vol.blockIndex(slots[i]).cast<double>() * vol.blockSize() + Eigen::Vector3d::Constant(half);
     const Eigen::Vector3d c = cam.R_cl_d * c_local + cam.t_cl_d;
     std::int64_t key = behind;
     if (c.z() > 1e-6) {
@@ -1417,14 +1419,14 @@ void finishIntegration(TsdfVolume& vol, const std::vector<std::uint32_t>& slots,
   for (std::size_t i = 0; i < slots.size(); ++i) {
     const BlockOutcome& o = outcomes[i];
     res.num_voxel_updates += o.updates;
-    if (o.in_view) res.updated_blocks.push_back(vol.block(slots[i]).index);
+    if (o.in_view) res.updated_blocks.push_back(vol.blockIndex(slots[i]));
     if (o.changed) changed.push_back(slots[i]);
   }
   if (changed.empty() && res.allocated_blocks.empty()) return;
   const std::uint64_t rev = vol.bumpRevision();
   for (const std::uint32_t s : changed) {
     vol.block(s).revision = rev;
-    res.changed_blocks.push_back(vol.block(s).index);
+    res.changed_blocks.push_back(vol.blockIndex(s));
   }
   for (const Eigen::Vector3i& b : res.allocated_blocks) vol.findBlock(b)->revision = rev;
 }

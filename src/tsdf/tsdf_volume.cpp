@@ -173,6 +173,7 @@ TsdfVolume::TsdfVolume(const TsdfVolume& other)
     *copy = *b;
     blocks_.push_back(copy);
   }
+  indices_ = other.indices_;
 }
 
 TsdfVolume& TsdfVolume::operator=(const TsdfVolume& other) {
@@ -188,8 +189,8 @@ std::size_t TsdfVolume::numObservedVoxels() const {
 }
 
 std::size_t TsdfVolume::memoryBytes() const {
-  return sizeof(*this) + blocks_.capacity() * sizeof(blocks_[0]) + slabs_.bytes() +
-         map_.memoryBytes();
+  return sizeof(*this) + blocks_.capacity() * sizeof(blocks_[0]) +
+         indices_.capacity() * sizeof(indices_[0]) + slabs_.bytes() + map_.memoryBytes();
 }
 
 TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
@@ -204,11 +205,14 @@ TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
   // Everything that can throw happens before the block is entered anywhere.
   if (blocks_.size() == blocks_.capacity())
     blocks_.reserve(std::max<std::size_t>(64, 2 * blocks_.capacity()));
+  if (indices_.size() == indices_.capacity())
+    indices_.reserve(std::max<std::size_t>(64, 2 * indices_.capacity()));
   map_.reserve(map_.size() + 1);
   TsdfBlock* block = slabs_.create();
   block->index = b;
   map_.insert(key, static_cast<std::uint32_t>(blocks_.size()));
   blocks_.push_back(block);
+  indices_.push_back(b);
   if (blocks_.size() == 1) {
     lo_ = hi_ = b;
   } else {
@@ -220,15 +224,13 @@ TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
 
 void TsdfVolume::reserveBlocks(std::size_t n) {
   if (blocks_.capacity() < blocks_.size() + n) blocks_.reserve(blocks_.size() + n);
+  if (indices_.capacity() < indices_.size() + n) indices_.reserve(indices_.size() + n);
   map_.reserve(map_.size() + n);
   slabs_.reserve(n);
 }
 
 std::vector<Eigen::Vector3i> TsdfVolume::blockIndices() const {
-  std::vector<Eigen::Vector3i> out;
-  out.reserve(blocks_.size());
-  for (const auto& b : blocks_) out.push_back(b->index);
-  return out;
+  return indices_;
 }
 
 std::vector<Eigen::Vector3i> TsdfVolume::blocksChangedSince(std::uint64_t revision) const {
@@ -249,6 +251,8 @@ void TsdfVolume::clear() {
   if (blocks_.empty()) return;
   blocks_.clear();
   blocks_.shrink_to_fit();
+  indices_.clear();
+  indices_.shrink_to_fit();
   slabs_.clear();
   map_ = BlockHashMap();
   lo_.setZero();

@@ -275,6 +275,18 @@ TEST(TsdfVolume, ManyBlocksLookupCopyAndMemoryPerVoxel) {
   const TsdfVolume copy = vol;
   EXPECT_TRUE(sameVolumes(copy, vol));
   EXPECT_EQ(copy.findBlock(Eigen::Vector3i(3, 4, 1))->voxels[7].weight, 3.0f);
+  // The compact per-slot index array agrees with the blocks, also in a copy and after clear().
+  const std::vector<Eigen::Vector3i> indices = vol.blockIndices();
+  ASSERT_EQ(indices.size(), vol.numBlocks());
+  for (std::size_t s = 0; s < vol.numBlocks(); ++s) {
+    ASSERT_EQ(vol.blockIndex(s), vol.block(s).index);
+    ASSERT_EQ(copy.blockIndex(s), copy.block(s).index);
+    ASSERT_EQ(indices[s], vol.block(s).index);
+  }
+  vol.clear();
+  EXPECT_TRUE(vol.blockIndices().empty());
+  vol.allocateBlock(Eigen::Vector3i(5, -6, 7));
+  EXPECT_EQ(vol.blockIndex(0), Eigen::Vector3i(5, -6, 7));
 }
 
 TEST(TsdfVolume, SampleIsTrilinearWhereObservedElseNearest) {
