@@ -54,6 +54,14 @@ struct IntegrateStats {
   std::size_t blocks_allocated = 0;
   std::size_t points_fused = 0;  ///< measurements inside some plane's band
   double milliseconds = 0.0;     ///< wall time of the call
+  /// Wall times of the call's stages (ms). For depth frames, tracking (plane tracking, its
+  /// refinements included) and then points (the object points kept for the change outputs) run
+  /// on one thread beside the frame's per-pixel pass, so they overlap it; fusion is the TSDF
+  /// update of every plane volume after it. For clouds the three run one after the other
+  /// (fusion includes the normals of an unorganised cloud).
+  double tracking_ms = 0.0;
+  double points_ms = 0.0;
+  double fusion_ms = 0.0;
 };
 
 namespace detail {

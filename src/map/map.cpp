@@ -417,14 +417,23 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   thread_local DepthFrameAnalysis scratch;
   DepthFrameAnalysis& analysis = scratch;  // the caller's (see keepPoints)
   IntegrateStats created;
+  double tracking_ms = 0.0, points_ms = 0.0;
   const std::function<void()> before_fusion = [&] {
+    const auto tt = Clock::now();
     track();
     syncPlanes(created);
+    tracking_ms = msSince(tt);
+    const auto tp = Clock::now();
     keepPoints(pts, true);
+    points_ms = msSince(tp);
   };
   analysis.analyse(frame, cfg_.truncation(), cfg_, before_fusion);
+  const auto tf = Clock::now();
   IntegrateStats stats;
   if (!planes_.empty()) stats = fuseDepth(analysis, camera_to_world, cfg_);
+  stats.fusion_ms = msSince(tf);
+  stats.tracking_ms = tracking_ms;
+  stats.points_ms = points_ms;
   stats.new_planes = std::move(created.new_planes);
   ++frames_;
   stats.milliseconds = msSince(t0);
@@ -459,13 +468,16 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   world.sensor_pose = cloud_to_world * cloud.sensor_pose;
 
   IntegrateStats created;
+  const auto tt = Clock::now();
   if (whole_cloud || !cloud.isOrganized()) {
     tracker_.merge(observationsOf(segmentPlanes(world, cfg_)), world.points);
   } else {
     tracker_.integrate(world.points, world.sensor_pose.translation());
   }
   syncPlanes(created);
+  const double tracking_ms = msSince(tt);
 
+  const auto tf = Clock::now();
   IntegrateStats stats;
   if (cloud.isOrganized()) {
     const Intrinsics k = estimateIntrinsics(cloud);
@@ -500,8 +512,12 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
       addResult(stats, ps.plane.id, r);
     }
   }
+  stats.fusion_ms = msSince(tf);
+  stats.tracking_ms = tracking_ms;
   stats.new_planes = std::move(created.new_planes);
+  const auto tp = Clock::now();
   keepPoints(world.points, !whole_cloud);
+  stats.points_ms = msSince(tp);
   ++frames_;
   stats.milliseconds = msSince(t0);
   return stats;

@@ -30,6 +30,14 @@ TEST(BenchCli, ShortRunWritesSaneJson) {
   EXPECT_GT(med, 0.0);
   EXPECT_LT(med, 60000.0);
   EXPECT_GE(j.at("integrate_ms_p95").get<double>(), med);
+  // The stages of a frame: each takes some time and none more than the largest whole call.
+  const double max_ms = j.at("integrate_ms_max").get<double>();
+  for (const char* k : {"tracking_ms_median", "points_ms_median", "fusion_ms_median"}) {
+    EXPECT_GT(j.at(k).get<double>(), 0.0) << k;
+    EXPECT_LE(j.at(k).get<double>(), max_ms) << k;
+  }
+  EXPECT_GE(j.at("fusion_ms_p95").get<double>(), j.at("fusion_ms_median").get<double>());
+  EXPECT_NE(r.out.find("TSDF fusion"), std::string::npos) << r.out;
   EXPECT_GT(j.at("detect_ms").get<double>(), 0.0);
   EXPECT_GT(j.at("peak_rss_mb").get<double>(), 1.0);
   EXPECT_GT(j.at("map_bytes").get<double>(), 0.0);

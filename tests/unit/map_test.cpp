@@ -278,6 +278,30 @@ TEST(Map, SameMapOnOneAndTwoThreads) {
   EXPECT_EQ(a.points(), b.points());
 }
 
+TEST(Map, IntegrateReportsItsStageTimes) {
+  // Tracking, then the kept points, then fusion are disjoint intervals of the call: each takes
+  // some time and together no more than the whole call. For a cloud as well.
+  Map m{Config{}};
+  const AnalyticScene scene = tableScene();
+  for (const Pose& T : test::ringPoses({0, 0, 0.75}, 0.9, 0.55, 2)) {
+    const IntegrateStats st = m.integrate(test::renderDepth(scene, Intrinsics{}, T), T);
+    EXPECT_GT(st.tracking_ms, 0.0);
+    EXPECT_GT(st.points_ms, 0.0);
+    EXPECT_GT(st.fusion_ms, 0.0);
+    EXPECT_LE(st.tracking_ms + st.points_ms + st.fusion_ms, st.milliseconds);
+  }
+  ASSERT_EQ(m.planes().size(), 2u);
+  PointCloud cloud;
+  for (int i = 0; i < 2000; ++i)
+    cloud.points.emplace_back(0.001f * static_cast<float>(i % 50),
+                              0.001f * static_cast<float>(i / 50), 0.8f);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  const IntegrateStats st = m.integrate(cloud, Pose::Identity());
+  EXPECT_GT(st.tracking_ms, 0.0);
+  EXPECT_GT(st.fusion_ms, 0.0);
+  EXPECT_LE(st.tracking_ms + st.points_ms + st.fusion_ms, st.milliseconds);
+}
+
 TEST(Map, BadFramesAreErrors) {
   Map m{Config{}};
   DepthFrame f;
