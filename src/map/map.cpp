@@ -142,11 +142,13 @@ void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
   }
 }
 
-/// Heights within `slack` of a band: 1 mm plus 4e-7 of the coordinates' magnitudes, several
-/// times the rounding error of the single-precision dot product, so that the pre-test never
-/// drops a point the exact (double) test keeps.
+/// Heights within a slack of a band pass the pre-test: kBandSlack plus kBandSlackPerMetre of
+/// the coordinates' and the offset's magnitudes, several times the rounding error of the
+/// single-precision dot product, so that it never drops a point the exact (double) test keeps.
+constexpr float kBandSlack = 1e-3f, kBandSlackPerMetre = 4e-7f;
+
 inline float bandSlack(float x, float y, float z, float abs_d) {
-  return 1e-3f + 4e-7f * (std::abs(x) + std::abs(y) + std::abs(z) + abs_d);
+  return kBandSlack + kBandSlackPerMetre * (std::abs(x) + std::abs(y) + std::abs(z) + abs_d);
 }
 
 /// maybe[i] = 1 when point i of the packed xyz array (m points) may lie in some band, else 0;
@@ -196,9 +198,10 @@ __attribute__((target("avx2"))) void bandPretestAvx2(const float* xyz, int m,
                                                     _mm256_mul_ps(_mm256_set1_ps(b.ny), y)),
                                       _mm256_mul_ps(_mm256_set1_ps(b.nz), z)),
                         _mm256_set1_ps(b.d));
-      const __m256 slack = _mm256_add_ps(
-          _mm256_set1_ps(1e-3f),
-          _mm256_mul_ps(_mm256_set1_ps(4e-7f), _mm256_add_ps(mag, _mm256_set1_ps(std::abs(b.d)))));
+      const __m256 slack =
+          _mm256_add_ps(_mm256_set1_ps(kBandSlack),
+                        _mm256_mul_ps(_mm256_set1_ps(kBandSlackPerMetre),
+                                      _mm256_add_ps(mag, _mm256_set1_ps(std::abs(b.d)))));
       const __m256 in =
           _mm256_and_ps(_mm256_cmp_ps(h, _mm256_sub_ps(_mm256_set1_ps(b.lo), slack), _CMP_GE_OQ),
                         _mm256_cmp_ps(h, _mm256_add_ps(_mm256_set1_ps(b.hi), slack), _CMP_LE_OQ));

@@ -4,7 +4,6 @@
 #include <omp.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <exception>
@@ -1321,14 +1320,18 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   // the block beyond that are skipped whole (the result is identical).
   const float near_dz = (kTsdfBlockSide - 1) * (std::min(0.0f, ax.z()) + std::min(0.0f, ay.z()));
   float occluded_from = kInf;
-  // Nearest pixel of image coordinate x on an axis of n pixels, clamped to the image.
-  const auto pixel = [](float x, int n) {
-    return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
+  // Slice z of the block holds band voxels / lies wholly beyond the occlusion bound.
+  const auto sliceInBand = [&](int z) {
+    const float h = static_cast<float>(c0_local.z() + z * vs);
+    return h >= prm.band.vox_lo && h <= prm.band.vox_hi;
   };
-  bool in_front = true;
+  const auto sliceOccluded = [&](int z) {
+    return c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from;
+  };
   {
     const float e = static_cast<float>(kTsdfBlockSide - 1);
     float umin = kInf, umax = -kInf, vmin = kInf, vmax = -kInf, zmax = -kInf;
+    bool in_front = true;
     for (int i = 0; i < 8; ++i) {
       const Eigen::Vector3f p =
           c0 + ((i & 1) ? e : 0.0f) * ax + ((i & 2) ? e : 0.0f) * ay + ((i & 4) ? e : 0.0f) * az;
@@ -1345,6 +1348,9 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
     }
     if (in_front) {
       if (umax < -0.5f || umin >= w_lim || vmax < -0.5f || vmin >= h_lim) return out;
+      const auto pixel = [](float x, int n) {
+        return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
+      };
       const int tx0 = pixel(umin, W) >> kGuardTileShift, tx1 = pixel(umax, W) >> kGuardTileShift;
       const int ty0 = pixel(vmin, H) >> kGuardTileShift, ty1 = pixel(vmax, H) >> kGuardTileShift;
       float dmax = -kInf, gmin = kInf;
@@ -1360,11 +1366,8 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
       // The measurements the voxel loop will gather, requested ahead (one cache line = 8 px),
       // unless every slice of the block is occluded (see below).
       bool any_slice = false;
-      for (int z = 0; z < kTsdfBlockSide && !any_slice; ++z) {
-        const float h = static_cast<float>(c0_local.z() + z * vs);
-        any_slice = h >= prm.band.vox_lo && h <= prm.band.vox_hi &&
-                    !(c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from);
-      }
+      for (int z = 0; z < kTsdfBlockSide && !any_slice; ++z)
+        any_slice = sliceInBand(z) && !sliceOccluded(z);
       if (any_slice) {
         const int u0 = pixel(umin, W), u1 = pixel(umax, W);
         for (int v = pixel(vmin, H); v <= pixel(vmax, H); ++v)
@@ -1388,9 +1391,8 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const Frust
   };
 
   for (int z = 0; z < kTsdfBlockSide; ++z) {
-    const float h = static_cast<float>(c0_local.z() + z * vs);
-    if (!(h >= prm.band.vox_lo && h <= prm.band.vox_hi)) continue;
-    if (c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from) {
+    if (!sliceInBand(z)) continue;
+    if (sliceOccluded(z)) {
       if (!out.in_view) out.in_view = sliceInView(z);
       continue;
     }
