@@ -47,6 +47,7 @@ const std::vector<Param>& params() {
       {"w_min", &Config::w_min},
       {"h_obj", &Config::h_obj},
       {"support_margin", &Config::support_margin},
+      {"object_min_solidity", &Config::object_min_solidity},
       {"delta_n", &Config::delta_n},
       {"delta_d", &Config::delta_d},
       {"refine_inplane", &Config::refine_inplane},
@@ -161,6 +162,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "delta_d, delta_h and h_obj must be positive");
   require(cfg.support_margin >= 0.0 && std::isfinite(cfg.support_margin),
           "support_margin must be finite and >= 0");
+  require(cfg.object_min_solidity >= 0.0 && cfg.object_min_solidity <= 1.0,
+          "object_min_solidity must be in [0, 1]");
   require(cfg.bins_theta >= 1 && cfg.bins_phi >= 1 && cfg.bins_lambda >= 1 &&
               cfg.bins_theta * cfg.bins_phi * cfg.bins_lambda <= 4096,
           "histogram bins must be >= 1 and at most 4096 in all");

@@ -97,6 +97,13 @@ struct Config {
   /// the plane (a wall or a shelf in a table's band, across the room) is not on it. A large value
   /// (1000) disables the limit.
   double support_margin = 0.10;
+  /// Speckle filter of the object map (computeObjectMap). A connected component of cells above
+  /// h_obj in which fewer than this fraction of the cells have their whole 3x3 neighbourhood above
+  /// h_obj is sensor noise percolating over a far or grazing surface (single noisy cells a few
+  /// mm above h_obj, touching diagonally), not a solid object: only its opening (the cells of
+  /// the 3x3 squares inside it) stays. Solid objects, 3x3 cells (2 cm) and wider, have a third
+  /// or more of such cells and stay whole. 0 keeps every component (DESIGN's plain components).
+  double object_min_solidity = 0.02;
 
   // --- registration ------------------------------------------------------------------------------
   double delta_n = 0.95;       ///< minimum cosine between normals

@@ -123,7 +123,8 @@ struct ObjectInfo {
   Eigen::Vector2d centroid = Eigen::Vector2d::Zero();  ///< mean cell centre, plane-local (u, v)
 };
 
-/// Labelled objects on a plane: the 8-connected components of height-map cells > h_obj.
+/// Labelled objects on a plane: the 8-connected components of height-map cells > h_obj
+/// (speckle components reduced to their opening, see Config::object_min_solidity).
 struct ObjectMap : GridGeometry {
   std::vector<int> labels;          ///< row-major; 0 = no object, 1..N = objects[label - 1]
   std::vector<ObjectInfo> objects;  ///< ordered by label (raster order of their first cell)
@@ -135,7 +136,10 @@ struct ObjectMap : GridGeometry {
 };
 
 /// The object map of `hm`: cells with height > cfg.h_obj, 8-connected, labelled in raster order
-/// (row by row, x fastest) of each component's first cell. Same geometry as `hm`.
+/// (row by row, x fastest) of each component's first cell. Same geometry as `hm`. A component
+/// with fewer than cfg.object_min_solidity of its cells in erode(mask, 1) is speckle: only its
+/// cells within one cell of those (its opening) are objects, as the components they form; a lone
+/// cell or a line one or two cells wide, with no 3x3 square, is none.
 ObjectMap computeObjectMap(const HeightMap& hm, const Config& cfg);
 
 // --- reusable 2D mask helpers -----------------------------------------------------------------
@@ -174,6 +178,11 @@ Mask2D removeSmallComponents(const Mask2D& mask, int min_area);
 /// on-cell lies within Chebyshev distance `cells`. Cells outside the grid are off. cells <= 0
 /// returns the mask unchanged.
 Mask2D dilate(const Mask2D& mask, int cells);
+
+/// `mask` eroded by `cells` cells with a square element: a cell is on when every cell within
+/// Chebyshev distance `cells` is on. Cells outside the grid are off (a cell nearer the border
+/// than `cells` is off). cells <= 0 returns the mask unchanged.
+Mask2D erode(const Mask2D& mask, int cells);
 
 // --- pictures ------------------------------------------------------------------------------------
 // Layout: the map sits at the top-left corner, each cell a square of s = picturePixelsPerCell()

@@ -1,4 +1,5 @@
-// 2D mask helpers: thresholding, connected components (flood fill) and square dilation.
+// 2D mask helpers: thresholding, connected components (flood fill), square dilation and
+// erosion.
 
 #include <algorithm>
 #include <cstdint>
@@ -38,12 +39,14 @@ int floodFill(const Mask2D& mask, std::size_t seed, int label, bool eight, std::
   return area;
 }
 
-/// One pass of a 1D max filter of radius r along rows (horizontal) or columns, on 0/1 cells,
-/// using a running count of on-cells in the window.
-std::vector<std::uint8_t> dilate1d(const std::vector<std::uint8_t>& in, int w, int h, int r,
-                                   bool horizontal) {
+/// One pass of a 1D max (dilation) or min (erosion: `all`) filter of radius r along rows
+/// (horizontal) or columns, on 0/1 cells, using a running count of on-cells in the window; cells
+/// outside the line count as off.
+std::vector<std::uint8_t> filter1d(const std::vector<std::uint8_t>& in, int w, int h, int r,
+                                   bool horizontal, bool all) {
   std::vector<std::uint8_t> out(in.size(), 0);
   const int lines = horizontal ? h : w, len = horizontal ? w : h;
+  const int need = all ? 2 * r + 1 : 1;
   const auto at = [&](int line, int i) {
     return horizontal ? static_cast<std::size_t>(line) * w + i
                       : static_cast<std::size_t>(i) * w + line;
@@ -54,7 +57,7 @@ std::vector<std::uint8_t> dilate1d(const std::vector<std::uint8_t>& in, int w, i
     for (int i = 0; i < len; ++i) {
       if (i + r < len) count += in[at(line, i + r)] != 0;
       if (i - r - 1 >= 0) count -= in[at(line, i - r - 1)] != 0;
-      out[at(line, i)] = count > 0 ? 1 : 0;
+      out[at(line, i)] = count >= need ? 1 : 0;
     }
   }
   return out;
@@ -111,8 +114,16 @@ Mask2D removeSmallComponents(const Mask2D& mask, int min_area) {
 Mask2D dilate(const Mask2D& mask, int cells) {
   if (cells <= 0 || mask.empty()) return mask;
   Mask2D out = Mask2D::zeros(mask.geometry());
-  out.cells = dilate1d(dilate1d(mask.cells, mask.width, mask.height, cells, true), mask.width,
-                       mask.height, cells, false);
+  out.cells = filter1d(filter1d(mask.cells, mask.width, mask.height, cells, true, false),
+                       mask.width, mask.height, cells, false, false);
+  return out;
+}
+
+Mask2D erode(const Mask2D& mask, int cells) {
+  if (cells <= 0 || mask.empty()) return mask;
+  Mask2D out = Mask2D::zeros(mask.geometry());
+  out.cells = filter1d(filter1d(mask.cells, mask.width, mask.height, cells, true, true), mask.width,
+                       mask.height, cells, false, true);
   return out;
 }
 

@@ -1,5 +1,5 @@
-// Object map (DESIGN §2 "object map"): 8-connected components of the cells above h_obj, with
-// per-object statistics.
+// Object map (DESIGN §2 "object map"): 8-connected components of the cells above h_obj, speckle
+// components reduced to their opening (Config::object_min_solidity), with per-object statistics.
 
 #include <algorithm>
 #include <utility>
@@ -12,7 +12,28 @@ namespace planesdf {
 ObjectMap computeObjectMap(const HeightMap& hm, const Config& cfg) {
   ObjectMap om;
   static_cast<GridGeometry&>(om) = hm.geometry();
-  Components cc = connectedComponents(maskAbove(hm, static_cast<float>(cfg.h_obj)), 1, 8);
+  Mask2D mask = maskAbove(hm, static_cast<float>(cfg.h_obj));
+  if (cfg.object_min_solidity > 0.0) {
+    // Speckle: components with too few cells whose 3x3 neighbourhood is all object keep only
+    // their opening (those cells' 3x3 squares, all inside the component).
+    const Mask2D core = erode(mask, 1);
+    const Components all = connectedComponents(mask, 1, 8);
+    std::vector<int> core_cells(all.areas.size() + 1, 0);
+    for (std::size_t i = 0; i < mask.cells.size(); ++i)
+      if (core.cells[i] != 0) ++core_cells[static_cast<std::size_t>(all.labels[i])];
+    std::vector<char> speckle(all.areas.size() + 1, 0);
+    bool any = false;
+    for (std::size_t l = 1; l < speckle.size(); ++l) {
+      speckle[l] = core_cells[l] < cfg.object_min_solidity * all.areas[l - 1];
+      any = any || speckle[l] != 0;
+    }
+    if (any) {
+      const Mask2D opened = dilate(core, 1);
+      for (std::size_t i = 0; i < mask.cells.size(); ++i)
+        if (speckle[static_cast<std::size_t>(all.labels[i])] != 0) mask.cells[i] = opened.cells[i];
+    }
+  }
+  Components cc = connectedComponents(mask, 1, 8);
   om.labels = std::move(cc.labels);
   om.objects.resize(cc.areas.size());
   for (std::size_t l = 0; l < om.objects.size(); ++l) {

@@ -602,7 +602,8 @@ HeightMap syntheticMap(int w, int h, float fill) {
 }
 
 TEST(ObjectMap, DiagonallyTouchingObjectsAreOne) {
-  const Config cfg = testConfig();
+  Config cfg = testConfig();
+  cfg.object_min_solidity = 0.0;  // DESIGN's plain components: the lone cell is an object too
   HeightMap hm = syntheticMap(20, 12, 0.0f);
   // Two 3x3 squares touching at one corner: (2..4, 2..4) and (5..7, 5..7).
   for (int y = 2; y <= 4; ++y)
@@ -627,6 +628,73 @@ TEST(ObjectMap, DiagonallyTouchingObjectsAreOne) {
   const Components four = connectedComponents(maskAbove(hm, float(cfg.h_obj)), 1, 4);
   EXPECT_EQ(four.count(), 3);
   EXPECT_EQ(four.areas, (std::vector<int>{9, 1, 9}));
+}
+
+TEST(ObjectMap, SpeckleKeepsOnlyItsOpeningAndSolidObjectsStayWhole) {
+  // The default speckle filter on the same map: the two squares (a component of 18 cells, 2 of
+  // them with a full 3x3 neighbourhood: 11 %) stay whole; the lone cell (no such cell) is none.
+  HeightMap hm = syntheticMap(20, 12, 0.0f);
+  for (int y = 2; y <= 4; ++y)
+    for (int x = 2; x <= 4; ++x) hm.at(x, y) = 0.05f;
+  for (int y = 5; y <= 7; ++y)
+    for (int x = 5; x <= 7; ++x) hm.at(x, y) = 0.07f;
+  hm.at(15, 2) = 0.02f;
+  const ObjectMap om = computeObjectMap(hm, testConfig());
+  ASSERT_EQ(om.numObjects(), 1);
+  EXPECT_EQ(om.object(1).area, 18);
+  EXPECT_EQ(om.at(15, 2), 0);
+}
+
+TEST(ObjectMap, SensorSpeckleOnAFarSurfaceIsNoObject) {
+  // A far wall's height map: every cell independently a few mm above h_obj with probability
+  // 0.45 (single noisy observations; at that density the noise cells percolate into one
+  // 8-connected cluster across the map), plus a 12 x 12 cell box (8.4 cm) and a 3 x 3 cell box
+  // (2.1 cm, the smallest solid object) standing in it. Only a full 3x3 square of noise cells
+  // survives the filter, with probability 0.45^9 = 7.6e-4 per cell.
+  const int w = 200, h = 150;
+  HeightMap hm = syntheticMap(w, h, 0.0f);
+  std::mt19937 rng(11);
+  std::bernoulli_distribution noisy(0.45);
+  int noise_cells = 0;
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      if (noisy(rng)) {
+        hm.at(x, y) = 0.013f;
+        ++noise_cells;
+      }
+  for (int y = 60; y < 72; ++y)
+    for (int x = 90; x < 102; ++x) hm.at(x, y) = 0.08f;
+  for (int y = 20; y < 23; ++y)
+    for (int x = 30; x < 33; ++x) hm.at(x, y) = 0.03f;
+
+  Config plain = testConfig();
+  plain.object_min_solidity = 0.0;
+  const ObjectMap before = computeObjectMap(hm, plain);
+  // Without the filter the box is part of a noise cluster of thousands of cells.
+  ASSERT_GT(before.at(95, 65), 0);
+  EXPECT_GT(before.object(before.at(95, 65)).area, 20 * 144);
+
+  const ObjectMap om = computeObjectMap(hm, testConfig());
+  // Each box is an object: its cells, plus at most the noise cells of 3x3 squares of object
+  // cells overlapping its border (a one-cell ring around it: 4 * 13 + 1 more cells at most).
+  ASSERT_GT(om.at(95, 65), 0);
+  const ObjectInfo& box = om.object(om.at(95, 65));
+  EXPECT_GE(box.area, 144);
+  EXPECT_LE(box.area, 144 + 4 * 14);
+  EXPECT_NEAR(box.max_height, 0.08f, 1e-6);
+  for (int y = 60; y < 72; ++y)
+    for (int x = 90; x < 102; ++x) EXPECT_EQ(om.at(x, y), om.at(95, 65));
+  ASSERT_GT(om.at(31, 21), 0);
+  EXPECT_GE(om.object(om.at(31, 21)).area, 9);
+  EXPECT_LE(om.object(om.at(31, 21)).area, 9 + 4 * 5);
+  // What is left of the noise: a few squares of about 9 cells (expected 0.45^9 * 30000 = 23 seed
+  // cells), far from the 13.5 k noise cells and hundreds of objects of the plain map.
+  std::size_t labelled = 0;
+  for (const int l : om.labels) labelled += l > 0 ? 1 : 0;
+  const std::size_t boxes = static_cast<std::size_t>(box.area + om.object(om.at(31, 21)).area);
+  EXPECT_LT(labelled - boxes, static_cast<std::size_t>(noise_cells) / 20);
+  EXPECT_LT(om.numObjects(), 60);
+  EXPECT_GT(before.numObjects(), 200);
 }
 
 TEST(ObjectMapMask, ComponentsAreaFilterAndDilation) {
@@ -659,6 +727,12 @@ TEST(ObjectMapMask, ComponentsAreaFilterAndDilation) {
   EXPECT_TRUE(dilate(one, 2).at(2, 6));
   EXPECT_FALSE(dilate(one, 2).at(1, 4));
   EXPECT_EQ(dilate(one, 0).cells, one.cells);
+  // Erosion: the 5x5 square of dilate(one, 2) erodes back to the 3x3 and the single cell; a cell
+  // on the grid's border never survives (outside is off).
+  EXPECT_EQ(erode(dilate(one, 2), 1).cells, dilate(one, 1).cells);
+  EXPECT_EQ(erode(dilate(one, 2), 2).cells, one.cells);
+  EXPECT_EQ(erode(one, 1).count(), 0u);
+  EXPECT_EQ(erode(one, 0).cells, one.cells);
   Mask2D corner = Mask2D::zeros(m.geometry());
   corner.set(0, 0);
   EXPECT_EQ(dilate(corner, 1).count(), 4u);
