@@ -63,7 +63,8 @@
 ///    size.
 ///  * Scores: a key voxel whose target neighbourhood has no feature (unobserved) is skipped and
 ///    not scored. The blob verdict uses the exact mean of the scores (the paper's histogram mean
-///    Σ m_i n_i / N without the binning error); no scored key voxel gives Verdict::Unknown.
+///    Σ m_i n_i / N without the binning error); fewer scored key voxels than
+///    ValidationParams::min_scored (3) give Verdict::Unknown.
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -92,6 +93,12 @@ struct ValidationParams {
   bool magnitude_weighted_votes = true;
   /// Largest bounding box (in voxels, margin included) of a blob validateBlob()/keyVoxels() accept.
   long long max_box_voxels = 1LL << 24;
+  /// A verdict (Changed or Unchanged) needs at least this many scored key voxels; with fewer the
+  /// blob is Unknown (its mean similarity is still reported). One or two key voxels are too little
+  /// 3D evidence either way: on the simulated room, the only key voxels of static table legs (on
+  /// their rims, seen from other viewpoints in the two sessions) and of a far wall's noise scored
+  /// below δ_blob and made them "changed"; real changes there score 16 to 30 key voxels.
+  int min_scored = 3;
 };
 
 /// Length of a feature: 3 N_θ N_φ N_λ + 1 (451 with the defaults). Throws planesdf::Error when a
@@ -170,7 +177,8 @@ struct BlobValidation {
   enum class Verdict {
     Changed,    ///< mean similarity < cfg.delta_blob
     Unchanged,  ///< mean similarity >= cfg.delta_blob
-    Unknown     ///< no key voxel could be scored: fall back to the height-map verdict
+    Unknown     ///< fewer than ValidationParams::min_scored key voxels could be scored: fall
+                ///< back to the height-map verdict
   };
   int key_voxels = 0;            ///< key voxels found in the blob
   int scored = 0;                ///< key voxels with an observed target neighbourhood

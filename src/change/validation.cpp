@@ -614,6 +614,7 @@ BlobValidation validateBlob(const TsdfVolume& source, const TsdfVolume& target,
   out.scored = static_cast<int>(out.similarities.size());
   if (out.scored == 0) return out;  // Unknown
   out.mean_similarity = sum / out.scored;
+  if (out.scored < params.min_scored) return out;  // Unknown: too little 3D evidence
   out.verdict = out.mean_similarity < cfg.delta_blob ? BlobValidation::Verdict::Changed
                                                      : BlobValidation::Verdict::Unchanged;
   return out;

@@ -521,6 +521,36 @@ TEST(ValidationBlob, ReplacedObjectsAreChanged) {
   EXPECT_EQ(c.verdict, Verdict::Changed);
 }
 
+TEST(ValidationBlob, TooFewScoredKeyVoxelsGiveNoVerdict) {
+  // The replaced books -> mug blob with at most 2 key voxels (the two of largest |det|): below
+  // the default min_scored of 3 it is Unknown, with its mean similarity still reported; allowing
+  // verdicts on 2 or on 1 scored key voxel gives the mean's verdict again.
+  const Config cfg = testConfig();
+  const Sdf books = bookStack(0.0, 0.0), m = mug(0.0, 0.0);
+  const TsdfVolume vb = analyticVolume(books, 0.001, 31);
+  const TsdfVolume vm = analyticVolume(m, 0.001, 32);
+  const std::vector<Eigen::Vector3i> blob = blobOf(vb, books, 0.03, cfg);
+  ValidationParams two;
+  two.max_key_voxels = 2;
+  const BlobValidation r = validateBlob(vb, vm, Pose::Identity(), blob, cfg, two);
+  report("books -> mug, 2 key voxels", r);
+  ASSERT_EQ(r.scored, 2);
+  EXPECT_EQ(r.verdict, Verdict::Unknown);
+  EXPECT_GT(r.mean_similarity, 0.0);
+  EXPECT_EQ(static_cast<int>(r.similarities.size()), 2);
+  const Verdict by_mean =
+      r.mean_similarity < cfg.delta_blob ? Verdict::Changed : Verdict::Unchanged;
+  for (const int min_scored : {1, 2}) {
+    ValidationParams p = two;
+    p.min_scored = min_scored;
+    const BlobValidation q = validateBlob(vb, vm, Pose::Identity(), blob, cfg, p);
+    EXPECT_EQ(q.verdict, by_mean);
+    EXPECT_DOUBLE_EQ(q.mean_similarity, r.mean_similarity);
+  }
+  // With every key voxel (8 or more scored) the default gives the verdict.
+  EXPECT_EQ(validateBlob(vb, vm, Pose::Identity(), blob, cfg).verdict, Verdict::Changed);
+}
+
 TEST(ValidationBlob, ShiftedObjectWithMatchingTransformIsUnchanged) {
   const Config cfg = testConfig();
   const Sdf box = standingBox(0.0, 0.0, {0.10, 0.06, 0.08});
