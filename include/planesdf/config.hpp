@@ -72,9 +72,10 @@ struct Config {
   double min_depth = 0.2;     ///< m
   float max_weight = 100.0f;  ///< weight cap per voxel
   int threads = 0;            ///< fusion threads; 0 = hardware concurrency
-  /// Fuse rows of voxels with the AVX2 kernel when the CPU has AVX2 (checked at run time). The
-  /// results are bit-identical to the scalar code, which runs when this is off or on CPUs
-  /// without AVX2.
+  /// Fuse rows of voxels with the AVX2 kernel when the CPU has AVX2 (checked at run time); also
+  /// the AVX2 builds of the kept points' band pre-test and of the height map's block
+  /// classification. The results are bit-identical to the scalar code, which runs when this is
+  /// off or on CPUs without AVX2.
   bool simd = true;
   /// Projective fusion skips "inside" values behind a surface near a silhouette, where the
   /// object may already have ended (integrateDepth). Right when other views fill in what is

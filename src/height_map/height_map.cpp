@@ -18,6 +18,15 @@
 namespace planesdf {
 namespace {
 
+bool cpuHasAvx2() {
+#if defined(__x86_64__) && defined(__GNUC__)
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+#else
+  return false;
+#endif
+}
+
 int resolveThreads(int requested) {
   return requested > 0 ? requested : std::max(1, omp_get_max_threads());
 }
@@ -59,8 +68,9 @@ using BlockColumnState = std::array<ColumnState, kColumnsPerBlock>;
 enum class BlockKind { kMixed, kAllFree, kAllUnobserved };
 
 /// kAllFree when every voxel is observed (weight >= w_eff) free space, kAllUnobserved when none
-/// is observed. A branch-free count over the 512 voxels (vectorised).
-BlockKind classifyBlock(const TsdfBlock& b, float w_eff) {
+/// is observed. A branch-free count over the 512 voxels, vectorised: inlined into a default and
+/// an AVX2 (8 voxels at a time) build of the same loop.
+__attribute__((always_inline)) inline BlockKind classifyVoxels(const TsdfBlock& b, float w_eff) {
   int free = 0, unobserved = 0;
   for (const TsdfVoxel& v : b.voxels) {
     free += (v.weight >= w_eff) & (v.sdf > 0.0f);
@@ -69,6 +79,25 @@ BlockKind classifyBlock(const TsdfBlock& b, float w_eff) {
   if (free == kTsdfBlockVoxels) return BlockKind::kAllFree;
   if (unobserved == kTsdfBlockVoxels) return BlockKind::kAllUnobserved;
   return BlockKind::kMixed;
+}
+
+BlockKind classifyBlockDefault(const TsdfBlock& b, float w_eff) {
+  return classifyVoxels(b, w_eff);
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+__attribute__((target("avx2"))) BlockKind classifyBlockAvx2(const TsdfBlock& b, float w_eff) {
+  return classifyVoxels(b, w_eff);
+}
+#endif
+
+/// classifyBlock with the AVX2 build when `avx2` (the caller checked the CPU).
+BlockKind classifyBlock(const TsdfBlock& b, float w_eff, bool avx2) {
+#if defined(__x86_64__) && defined(__GNUC__)
+  if (avx2) return classifyBlockAvx2(b, w_eff);
+#endif
+  static_cast<void>(avx2);
+  return classifyBlockDefault(b, w_eff);
 }
 
 /// Advances every column without a surface by one z-layer (64 contiguous voxels at height
@@ -105,8 +134,9 @@ int walkLayer(const TsdfVoxel* layer, int k, bool adjacent, float vs, float w_ef
 
 /// Advances the columns over a whole block at once when it is all free (no surface possible;
 /// the state becomes that of its bottom layer) or all unobserved. False for a mixed block.
-bool skipUniformBlock(const TsdfBlock& b, float vs, float w_eff, BlockColumnState& cols) {
-  const BlockKind kind = classifyBlock(b, w_eff);
+bool skipUniformBlock(const TsdfBlock& b, float vs, float w_eff, bool avx2,
+                      BlockColumnState& cols) {
+  const BlockKind kind = classifyBlock(b, w_eff, avx2);
   if (kind == BlockKind::kMixed) return false;
   const float bottom_centre = (static_cast<float>(b.index.z() * kTsdfBlockSide) + 0.5f) * vs;
   for (int c = 0; c < kColumnsPerBlock; ++c) {
@@ -122,7 +152,8 @@ bool skipUniformBlock(const TsdfBlock& b, float vs, float w_eff, BlockColumnStat
 /// out[lx + 8 * ly]. Walks the blocks top-down one z-layer (64 contiguous voxels) at a time, so
 /// the voxel reads stream through memory, skipping uniform blocks whole; stops when every
 /// column has found its surface.
-void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float h_obj, float* out) {
+void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float h_obj, bool avx2,
+                        float* out) {
   // weight > 0 && weight >= w_min, as one comparison.
   const float w_eff = std::max(w_min, std::numeric_limits<float>::denorm_min());
   BlockColumnState cols{};
@@ -131,7 +162,7 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
   for (std::size_t i = 0; i < blocks.size() && active > 0; ++i) {
     const TsdfBlock& b = *blocks[i];
     const int kbase = b.index.z() * kTsdfBlockSide;
-    if (skipUniformBlock(b, vs, w_eff, cols)) {
+    if (skipUniformBlock(b, vs, w_eff, avx2, cols)) {
       above_k = kbase;
       continue;
     }
@@ -175,13 +206,14 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
   const int nbx = hi.x() - lo.x() + 1;
   const int num_columns = static_cast<int>(columns.size());
   const float vs = static_cast<float>(vol.voxelSize());
+  const bool avx2 = cfg.simd && cpuHasAvx2();
 #pragma omp parallel for num_threads(resolveThreads(cfg.threads)) \
     schedule(dynamic, 16) if (num_columns >= 64)
   for (int c = 0; c < num_columns; ++c) {
     const BlockColumn& col = columns[static_cast<std::size_t>(c)];
     if (col.empty()) continue;
     std::array<float, kColumnsPerBlock> values;
-    blockColumnHeights(col, vs, cfg.w_min, static_cast<float>(cfg.h_obj), values.data());
+    blockColumnHeights(col, vs, cfg.w_min, static_cast<float>(cfg.h_obj), avx2, values.data());
     const int x0 = (c % nbx) * kTsdfBlockSide;
     const int y0 = (c / nbx) * kTsdfBlockSide;
     for (int ly = 0; ly < kTsdfBlockSide; ++ly)

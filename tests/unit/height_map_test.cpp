@@ -426,6 +426,8 @@ TEST(HeightMap, MatchesAPlainPerColumnWalkOnRandomVolumes) {
   expectMatchesReference(vol, cfg);
   cfg.threads = 1;
   expectMatchesReference(vol, cfg);
+  cfg.simd = false;  // the default build of the block classification instead of AVX2
+  expectMatchesReference(vol, cfg);
   // The analytic scene, with its fully free blocks.
   Config scfg = testConfig();
   expectMatchesReference(sceneVolume(), scfg, 2);
