@@ -86,6 +86,8 @@ struct RoomFigures {
   std::size_t frames = 0;
   double integrate_ms_median = 0.0;
   std::vector<double> detect_ms;  ///< per run, in order
+  /// Per run, in order: ChangeSet's phase times (maps, correction, forward, backward).
+  std::vector<double> maps_ms, correction_ms, forward_ms, backward_ms;
   std::size_t events = 0;
   std::size_t voxels = 0;
   std::size_t map_bytes = 0;
@@ -118,6 +120,10 @@ RoomFigures roomBench(int max_frames) {
     const auto td = Clock::now();
     const ChangeSet set = detectChanges(reference, current, cfg);
     r.detect_ms.push_back(msSince(td));
+    r.maps_ms.push_back(set.maps_ms);
+    r.correction_ms.push_back(set.correction_ms);
+    r.forward_ms.push_back(set.forward_ms);
+    r.backward_ms.push_back(set.backward_ms);
     r.events = set.events.size();
     std::cerr << "bench: room detectChanges " << r.detect_ms.back() << " ms, " << r.events
               << " events\n";
@@ -217,6 +223,10 @@ int runSingleBench(const BenchArgs& args) {
   j["room_integrate_ms_median"] = room.integrate_ms_median;
   j["detect_room_ms"] = quantile(room.detect_ms, 0.5);
   j["detect_room_ms_runs"] = room.detect_ms;
+  j["detect_room_maps_ms"] = quantile(room.maps_ms, 0.5);
+  j["detect_room_correction_ms"] = quantile(room.correction_ms, 0.5);
+  j["detect_room_forward_ms"] = quantile(room.forward_ms, 0.5);
+  j["detect_room_backward_ms"] = quantile(room.backward_ms, 0.5);
   j["room_events"] = room.events;
   j["room_voxels"] = room.voxels;
   j["room_map_bytes"] = room.map_bytes;
@@ -243,6 +253,10 @@ int runSingleBench(const BenchArgs& args) {
   std::printf("  %-34s %10.1f ms (median of %d; %zu events, %zu + %zu frames)\n",
               "detectChanges (room pair)", quantile(room.detect_ms, 0.5), kRoomDetectRuns,
               room.events, room.frames, room.frames);
+  std::printf("  %-34s %10.1f ms, correction %.1f ms, pairs %.1f + %.1f ms (medians)\n",
+              "  of which plane maps", quantile(room.maps_ms, 0.5),
+              quantile(room.correction_ms, 0.5), quantile(room.forward_ms, 0.5),
+              quantile(room.backward_ms, 0.5));
   std::printf("  %-34s %10.1f MB\n", "map memory (reference)", j["map_bytes"].get<double>() / 1e6);
   if (std::isfinite(octomap_bytes))
     std::printf("  %-34s %10.1f MB\n", "octomap memory", octomap_bytes / 1e6);

@@ -999,7 +999,11 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
       uniqueMatches(registerPlanes(reference, current, cfg));
   const std::vector<PlaneMatch> backward_matches =
       uniqueMatches(registerPlanes(current, reference, cfg));
+  const auto msSince = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+  };
   // The maps of every matched plane, in parallel (computed once; read-only from here on).
+  auto tp = std::chrono::steady_clock::now();
   {
     std::vector<std::pair<bool, int>> needed;
     for (const PlaneMatch& m : forward_matches) {
@@ -1020,13 +1024,17 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     });
     for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
   }
+  set.maps_ms = msSince(tp);
+  tp = std::chrono::steady_clock::now();
   const Pose correction =
       cfg.refine_inplane
           ? sessionCorrection(
                 reference, current, forward_matches,
                 [&](bool ref, int id) -> const PlaneMaps& { return mapsOf(ref, id); }, cfg)
           : Pose::Identity();
+  set.correction_ms = msSince(tp);
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
+    tp = std::chrono::steady_clock::now();
     std::vector<PlaneMatch> matches = forward ? forward_matches : backward_matches;
     if (forward)
       for (PlaneMatch& m : matches) m = corrected(m, current, correction);
@@ -1048,6 +1056,7 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
       for (auto& x : found[i]) (forward ? removed : added).push_back(std::move(x));
       set.pairs.push_back(std::move(results[i]));
     }
+    (forward ? set.forward_ms : set.backward_ms) = msSince(tp);
   }
   set.events = assembleEvents(std::move(removed), std::move(added), cfg);
   set.milliseconds =

@@ -53,6 +53,15 @@ TEST(BenchCli, ShortRunWritesSaneJson) {
   std::vector<double> sorted = runs;
   std::sort(sorted.begin(), sorted.end());
   EXPECT_EQ(j.at("detect_room_ms").get<double>(), sorted[1]);
+  // The phases' medians: each within the slowest run (a phase's median is at most its slowest
+  // run's, which is part of that run); maps and pairs take time.
+  for (const char* key : {"detect_room_maps_ms", "detect_room_correction_ms",
+                          "detect_room_forward_ms", "detect_room_backward_ms"}) {
+    EXPECT_GE(j.at(key).get<double>(), 0.0) << key;
+    EXPECT_LE(j.at(key).get<double>(), sorted[2]) << key;
+  }
+  EXPECT_GT(j.at("detect_room_maps_ms").get<double>(), 0.0);
+  EXPECT_GT(j.at("detect_room_forward_ms").get<double>(), 0.0);
   EXPECT_GT(j.at("room_voxels").get<double>(), 0.0);
   EXPECT_GE(j.at("room_map_bytes").get<double>(), j.at("room_voxels").get<double>());
   EXPECT_NE(r.out.find("room pair"), std::string::npos) << r.out;

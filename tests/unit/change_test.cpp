@@ -122,6 +122,12 @@ TEST(DetectChanges, RemovedAddedAndMovedObjectsAreTypedAndLocated) {
   }
   // Ids are 1..N.
   for (std::size_t i = 0; i < s.events.size(); ++i) EXPECT_EQ(s.events[i].id, int(i) + 1);
+  // The phase times: disjoint parts of the call, the maps and both directions' pairs take time.
+  EXPECT_GT(s.maps_ms, 0.0);
+  EXPECT_GE(s.correction_ms, 0.0);
+  EXPECT_GT(s.forward_ms, 0.0);
+  EXPECT_GT(s.backward_ms, 0.0);
+  EXPECT_LE(s.maps_ms + s.correction_ms + s.forward_ms + s.backward_ms, s.milliseconds);
 }
 
 TEST(DetectChanges, SameResultOnOneAndTwoThreads) {
