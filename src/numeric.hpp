@@ -1,4 +1,4 @@
-// Internal numeric helpers shared by the stages (not installed).
+// Internal numeric and CPU helpers shared by the stages (not installed).
 #pragma once
 
 #include <cmath>
@@ -16,6 +16,18 @@ inline int floorToInt(double x) {
 /// floorToInt(x) when |x| < 1e9, else `fallback` (also for NaN).
 inline int floorToIntOr(double x, int fallback) {
   return std::abs(x) < 1e9 ? floorToInt(x) : fallback;
+}
+
+/// True when this CPU runs AVX2 code (checked once, at the first call). The stages' AVX2 builds
+/// (fusion's row kernel, the kept points' band pre-test, the height map's block classification)
+/// run when this and cfg.simd are true.
+inline bool cpuHasAvx2() {
+#if defined(__x86_64__) && defined(__GNUC__)
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+#else
+  return false;
+#endif
 }
 
 }  // namespace planesdf::detail

@@ -3,6 +3,7 @@
 
 #include "planesdf/height_map.hpp"
 
+#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 
 #include <omp.h>
@@ -17,15 +18,6 @@
 
 namespace planesdf {
 namespace {
-
-bool cpuHasAvx2() {
-#if defined(__x86_64__) && defined(__GNUC__)
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
-#else
-  return false;
-#endif
-}
 
 int resolveThreads(int requested) {
   return requested > 0 ? requested : std::max(1, omp_get_max_threads());
@@ -81,10 +73,6 @@ __attribute__((always_inline)) inline BlockKind classifyVoxels(const TsdfBlock& 
   return BlockKind::kMixed;
 }
 
-BlockKind classifyBlockDefault(const TsdfBlock& b, float w_eff) {
-  return classifyVoxels(b, w_eff);
-}
-
 #if defined(__x86_64__) && defined(__GNUC__)
 __attribute__((target("avx2"))) BlockKind classifyBlockAvx2(const TsdfBlock& b, float w_eff) {
   return classifyVoxels(b, w_eff);
@@ -97,7 +85,7 @@ BlockKind classifyBlock(const TsdfBlock& b, float w_eff, bool avx2) {
   if (avx2) return classifyBlockAvx2(b, w_eff);
 #endif
   static_cast<void>(avx2);
-  return classifyBlockDefault(b, w_eff);
+  return classifyVoxels(b, w_eff);
 }
 
 /// Advances every column without a surface by one z-layer (64 contiguous voxels at height
@@ -206,7 +194,7 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
   const int nbx = hi.x() - lo.x() + 1;
   const int num_columns = static_cast<int>(columns.size());
   const float vs = static_cast<float>(vol.voxelSize());
-  const bool avx2 = cfg.simd && cpuHasAvx2();
+  const bool avx2 = cfg.simd && detail::cpuHasAvx2();
 #pragma omp parallel for num_threads(resolveThreads(cfg.threads)) \
     schedule(dynamic, 16) if (num_columns >= 64)
   for (int c = 0; c < num_columns; ++c) {

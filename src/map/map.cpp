@@ -11,6 +11,7 @@
 #include <exception>
 #include <functional>
 
+#include "../numeric.hpp"
 #include "map_internal.hpp"
 #include "planesdf/config_io.hpp"
 #include "planesdf/error.hpp"
@@ -227,8 +228,7 @@ void addResult(IntegrateStats& stats, int plane_id, const IntegrationResult& r) 
 void detail::bandPretest(const float* xyz, int m, const std::vector<BandF>& bands,
                          std::uint8_t* maybe, bool simd) {
 #if defined(__x86_64__) && defined(__GNUC__)
-  static const bool avx2 = __builtin_cpu_supports("avx2");
-  if (simd && avx2) return bandPretestAvx2(xyz, m, bands, maybe);
+  if (simd && cpuHasAvx2()) return bandPretestAvx2(xyz, m, bands, maybe);
 #endif
   bandPretestScalar(xyz, m, bands, maybe);
 }

@@ -12,6 +12,7 @@
 #include <memory>
 #include <string>
 
+#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/tsdf.hpp"
 
@@ -1249,16 +1250,6 @@ __attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, f
   _mm256_storeu_ps(raw, _mm256_unpacklo_ps(s_out, w_out));
   _mm256_storeu_ps(raw + 8, _mm256_unpackhi_ps(s_out, w_out));
 }
-
-/// True when this CPU runs the AVX2 kernel.
-bool cpuHasAvx2() {
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
-}
-#else
-bool cpuHasAvx2() {
-  return false;
-}
 #endif
 
 /// Pass 2 for one block: projects its voxel centres (memory order) and fuses them.
@@ -1570,7 +1561,7 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
   // page faulting per call.
   thread_local std::vector<std::uint8_t> in_band;
   thread_local BlockGrid grid;  // the block cells around the frustum (see allocateInBand)
-  const bool simd = cfg.simd && cpuHasAvx2();
+  const bool simd = cfg.simd && detail::cpuHasAvx2();
   res.num_points_fused = allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, simd, grid,
                                         in_band, res.allocated_blocks);
   const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band, grid);
