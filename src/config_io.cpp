@@ -48,6 +48,8 @@ const std::vector<Param>& params() {
       {"h_obj", &Config::h_obj},
       {"support_margin", &Config::support_margin},
       {"object_min_solidity", &Config::object_min_solidity},
+      {"blob_min_overlap", &Config::blob_min_overlap},
+      {"blob_large_area", &Config::blob_large_area},
       {"delta_n", &Config::delta_n},
       {"delta_d", &Config::delta_d},
       {"refine_inplane", &Config::refine_inplane},
@@ -164,6 +166,10 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "support_margin must be finite and >= 0");
   require(cfg.object_min_solidity >= 0.0 && cfg.object_min_solidity <= 1.0,
           "object_min_solidity must be in [0, 1]");
+  require(cfg.blob_min_overlap >= 0.0 && cfg.blob_min_overlap <= 1.0,
+          "blob_min_overlap must be in [0, 1]");
+  require(cfg.blob_large_area >= 0.0 && std::isfinite(cfg.blob_large_area),
+          "blob_large_area must be finite and >= 0");
   require(cfg.bins_theta >= 1 && cfg.bins_phi >= 1 && cfg.bins_lambda >= 1 &&
               cfg.bins_theta * cfg.bins_phi * cfg.bins_lambda <= 4096,
           "histogram bins must be >= 1 and at most 4096 in all");

@@ -49,15 +49,34 @@ struct Blob {
   int area = 0;                                        ///< cells
   Eigen::Vector2i bbox_min = Eigen::Vector2i::Zero();  ///< cell (x, y), inclusive
   Eigen::Vector2i bbox_max = Eigen::Vector2i::Zero();  ///< cell (x, y), inclusive
+  /// True when it holds no whole object, only changed cells of objects it touches a sliver of
+  /// (see changedBlobs), such as the edge of a shelf seen from another viewpoint.
+  bool partial = false;
 };
+
+/// True when a change covering `changed_cells` of an object-map component of `object_cells`
+/// touches only a sliver of it: the component has at least `large_cells` cells (larger than one
+/// movable object: furniture, a noisy stretch of wall) and the change covers less than
+/// `min_overlap` of them.
+bool sliverOf(int changed_cells, int object_cells, double min_overlap, int large_cells);
+
+/// Config::blob_large_area in cells of the height-map grid (voxel_size squared), rounded up.
+int largeObjectCells(const Config& cfg);
 
 /// The connected components (8-connected) of (cleaned ∩ object cells of `src_objects`), each
 /// grown to the whole object-map component(s) it overlaps; components growing into a common
-/// object are merged into one blob. Changed cells off any object are not blobs (in the
+/// object are merged into one blob. An object that every component on it touches only a sliver
+/// of (sliverOf with `min_overlap` and `large_cells`) is not grown into: each such component is
+/// a blob of its own cells (a change cluster that overlaps an object highly selects it):
+/// the paper selects the objects the change clusters overlap highly, and a box swapped on a
+/// shelf changes a sliver of the shelf, which is one object of the wall's plane. min_overlap = 0
+/// always grows (DESIGN's blobs). Changed cells off any object are not blobs (in the
 /// source→target direction they are places where something appeared: the reverse run reports
-/// them). Blobs are ordered by their smallest object label. Throws planesdf::Error("change", ...)
+/// them). Blobs holding whole objects come first, ordered by their smallest object label, then
+/// the blobs of slivers only (Blob::partial), by component. Throws planesdf::Error("change", ...)
 /// when the two grids differ.
-std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects);
+std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects,
+                               double min_overlap = 0.0, int large_cells = 0);
 
 /// Every stage of the 2D change detection of one registered plane pair, so callers can save a
 /// picture per stage.

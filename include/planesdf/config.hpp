@@ -115,6 +115,13 @@ struct Config {
   double delta_h = 0.02;      ///< m
   int min_change_cells = 20;  ///< drop changed components smaller than this
   int dilation_cells = 1;
+  /// A changed blob grows to the whole object-map component it overlaps, except into a
+  /// component of at least blob_large_area (m², larger than one movable object: a shelf with
+  /// its back panel in a wall's band, a noisy stretch of a far wall) of which the change covers
+  /// less than blob_min_overlap: of that, only the changed cells join, and such a blob is a
+  /// change only on 3D evidence. blob_min_overlap = 0 always grows (DESIGN's blobs).
+  double blob_min_overlap = 0.5;
+  double blob_large_area = 0.1;  ///< m²
 
   // --- 3D validation ----------------------------------------------------------------------------
   int bins_theta = 5;

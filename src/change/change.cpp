@@ -550,6 +550,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     return label_cells;
   };
 
+  const int large_cells = largeObjectCells(cfg);
   std::vector<CandidateChange> out;
   // Per cell: index of the candidate it belongs to and its height range.
   std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
@@ -562,7 +563,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     cand.target_plane_id = tgt.plane.id;
     std::vector<Eigen::Vector3i> voxels;
     std::vector<std::pair<std::size_t, std::pair<float, float>>> ranges;
-    std::set<int> target_labels;
+    std::map<int, int> target_labels;       // target object label -> blob cells landing on it
+    std::vector<std::size_t> landed_cells;  // target cells (row-major) on an object it lands on
     int on_target_objects = 0;
     for (const Eigen::Vector2i& c : blob.cells) {
       const float h_src = hs.at(c.x(), c.y());
@@ -573,7 +575,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         cand.target_columns.emplace_back(ht.i0 + tc.x(), ht.j0 + tc.y());
         const int label = ot.at(tc.x(), tc.y());
         if (label > 0) {
-          target_labels.insert(label);
+          ++target_labels[label];
+          landed_cells.push_back(ht.index(tc.x(), tc.y()));
           ++on_target_objects;
         }
       }
@@ -618,6 +621,12 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T));
     cand.same_in_place = r.in_place.back().same();
     if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
+    // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
+    // cluster, is a change only on 3D evidence (verdict Changed): without it, its height
+    // differences are edges and rims seen from other viewpoints.
+    if ((blob.partial || blob.area < cfg.min_change_cells) &&
+        val.verdict != BlobValidation::Verdict::Changed)
+      continue;
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
     reg.voxels = std::move(voxels);
@@ -637,12 +646,22 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if (!target_labels.empty()) {  // the target objects it lands on, as a region
       ChangeRegion& to = cand.target_object;
       to.plane_id = tgt.plane.id;
-      // Its objects' cells in raster order.
-      std::vector<std::size_t> flat;
-      for (const int label : target_labels) {
-        const auto& lc = target_label_cells()[static_cast<std::size_t>(label)];
-        flat.insert(flat.end(), lc.begin(), lc.end());
+      // Its objects' cells in raster order: whole objects, but of an object it lands on a sliver
+      // of (sliverOf: a shelf in a wall's band), only the cells it lands on.
+      std::vector<std::size_t> flat, partial;
+      std::set<int> whole;
+      for (const auto& [label, landed] : target_labels) {
+        if (!sliverOf(landed, ot.object(label).area, cfg.blob_min_overlap, large_cells)) {
+          whole.insert(label);
+          const auto& lc = target_label_cells()[static_cast<std::size_t>(label)];
+          flat.insert(flat.end(), lc.begin(), lc.end());
+        }
       }
+      for (const std::size_t c : landed_cells)
+        if (whole.count(ot.labels[c]) == 0) partial.push_back(c);
+      std::sort(partial.begin(), partial.end());
+      partial.erase(std::unique(partial.begin(), partial.end()), partial.end());
+      flat.insert(flat.end(), partial.begin(), partial.end());
       std::sort(flat.begin(), flat.end());
       std::vector<Eigen::Vector2i> cells;
       cells.reserve(flat.size());
@@ -659,10 +678,21 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       finishRegion(to, tgt.volume, tgt.plane);
       // Its points: those standing on its cells within its heights (input order).
       std::vector<std::uint32_t> picked;
-      for (const int label : target_labels) {
+      for (const int label : whole) {
         const auto it = target_objects_points().find(label);
         if (it != target_objects_points().end())
           picked.insert(picked.end(), it->second.begin(), it->second.end());
+      }
+      if (!partial.empty()) {
+        const CellPoints& pc = cellsOf(tgt_maps, tgt, ht, target_points, own_target_cells);
+        for (const std::size_t c : partial) {
+          const double hi = static_cast<double>(ht.heights[c]) + vs;
+          for (std::uint32_t k = pc.start[c]; k < pc.start[c + 1]; ++k) {
+            const std::uint32_t i = pc.index[k];
+            const double z = tgt.plane.toLocal(target_points[i].cast<double>()).z();
+            if (z >= lo_flat && z <= hi) picked.push_back(i);
+          }
+        }
       }
       std::sort(picked.begin(), picked.end());
       for (const std::uint32_t i : picked) to.points.push_back(target_points[i]);

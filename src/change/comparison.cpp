@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -97,70 +98,110 @@ Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg) {
   return dilate(removeSmallComponents(mask, cfg.min_change_cells), cfg.dilation_cells);
 }
 
-std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects) {
+bool sliverOf(int changed_cells, int object_cells, double min_overlap, int large_cells) {
+  return object_cells >= large_cells && changed_cells < min_overlap * object_cells;
+}
+
+int largeObjectCells(const Config& cfg) {
+  const double cells = cfg.blob_large_area / (cfg.voxel_size * cfg.voxel_size);
+  return cells >= 2e9 ? std::numeric_limits<int>::max() : static_cast<int>(std::ceil(cells));
+}
+
+std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects,
+                               double min_overlap, int large_cells) {
   if (!cleaned.sameGeometry(src_objects.geometry()) || cleaned.cells.size() != cleaned.numCells() ||
       src_objects.labels.size() != src_objects.numCells()) {
     throw Error("change", "change mask and object map have different grids");
   }
   const int n_obj = src_objects.numObjects();
-  // Components of (mask ∩ object cells); each one's objects are grouped by union-find, so a
-  // component touching several objects (other connectivity) and objects touched by several
-  // components end up in one blob.
+  // Components of (mask ∩ object cells); each lies on one object (distinct objects are never
+  // 8-adjacent).
   Mask2D inter = Mask2D::zeros(cleaned.geometry());
   for (std::size_t i = 0; i < inter.cells.size(); ++i) {
     const int l = src_objects.labels[i];
     inter.cells[i] = (cleaned.cells[i] != 0 && l > 0 && l <= n_obj) ? 1 : 0;
   }
   const Components comps = connectedComponents(inter, 1, 8);
-  std::vector<int> parent(static_cast<std::size_t>(n_obj) + 1);
+  std::vector<int> comp_object(static_cast<std::size_t>(comps.count()) + 1, 0);
+  for (std::size_t i = 0; i < inter.cells.size(); ++i)
+    if (comps.labels[i] > 0)
+      comp_object[static_cast<std::size_t>(comps.labels[i])] = src_objects.labels[i];
+  // An object grows whole into the blob of its changed components unless each of them touches
+  // only a sliver of it (then each keeps only its own cells).
+  std::vector<char> whole(static_cast<std::size_t>(n_obj) + 1, 0);
+  for (int c = 1; c <= comps.count(); ++c) {
+    const int l = comp_object[static_cast<std::size_t>(c)];
+    if (!sliverOf(comps.areas[static_cast<std::size_t>(c - 1)], src_objects.object(l).area,
+                  min_overlap, large_cells))
+      whole[static_cast<std::size_t>(l)] = 1;
+  }
+  // Union-find over nodes: objects 1..n_obj, then the components of inter (n_obj + c). A
+  // component joins the whole objects it touches, so a component touching several objects and
+  // objects touched by several components end up in one blob. The root is the smallest node.
+  const int n_nodes = n_obj + comps.count() + 1;
+  std::vector<int> parent(static_cast<std::size_t>(n_nodes));
   for (std::size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
   auto find = [&parent](int a) {
     while (parent[a] != a) a = parent[a] = parent[parent[a]];
     return a;
   };
-  std::vector<int> comp_first(static_cast<std::size_t>(comps.count()) + 1, 0);
-  std::vector<char> hit(static_cast<std::size_t>(n_obj) + 1, 0);
-  for (std::size_t i = 0; i < inter.cells.size(); ++i) {
-    const int c = comps.labels[i];
-    if (c <= 0) continue;
-    const int l = src_objects.labels[i];
-    hit[l] = 1;
-    if (comp_first[c] == 0) {
-      comp_first[c] = l;
-    } else {
-      const int a = find(comp_first[c]);
-      const int b = find(l);
-      if (a != b) parent[std::max(a, b)] = std::min(a, b);
-    }
+  const auto unite = [&](int a, int b) {
+    a = find(a);
+    b = find(b);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  };
+  for (int c = 1; c <= comps.count(); ++c) {
+    const int l = comp_object[static_cast<std::size_t>(c)];
+    if (whole[static_cast<std::size_t>(l)]) unite(n_obj + c, l);
   }
-  // One blob per root among the hit objects, ordered by smallest label (= the root).
-  std::vector<int> blob_of(static_cast<std::size_t>(n_obj) + 1, -1);
+  // One blob per root, ordered by root: blobs holding whole objects by their smallest object
+  // label, then blobs of partial objects only, by component.
+  std::vector<int> blob_of(static_cast<std::size_t>(n_nodes), -1);
   std::vector<Blob> blobs;
-  for (int l = 1; l <= n_obj; ++l) {
-    if (!hit[l]) continue;
-    const int r = find(l);
-    if (blob_of[r] < 0) {
-      blob_of[r] = static_cast<int>(blobs.size());
+  const auto blobOf = [&](int node) -> Blob& {
+    const int r = find(node);
+    if (blob_of[static_cast<std::size_t>(r)] < 0) {
+      blob_of[static_cast<std::size_t>(r)] = static_cast<int>(blobs.size());
       Blob b;
       b.mask = Mask2D::zeros(cleaned.geometry());
       b.bbox_min = Eigen::Vector2i(cleaned.width, cleaned.height);
       b.bbox_max = Eigen::Vector2i(-1, -1);
       blobs.push_back(std::move(b));
     }
-    blob_of[l] = blob_of[r];
-    blobs[static_cast<std::size_t>(blob_of[r])].object_labels.push_back(l);
-  }
+    return blobs[static_cast<std::size_t>(blob_of[static_cast<std::size_t>(r)])];
+  };
+  std::vector<int> roots;
+  for (int l = 1; l <= n_obj; ++l)
+    if (whole[static_cast<std::size_t>(l)]) roots.push_back(find(l));
+  for (int c = 1; c <= comps.count(); ++c) roots.push_back(find(n_obj + c));
+  std::sort(roots.begin(), roots.end());
+  roots.erase(std::unique(roots.begin(), roots.end()), roots.end());
+  for (int r : roots) blobOf(r).partial = r > n_obj;  // the smallest node is an object if any
   for (int y = 0; y < cleaned.height; ++y) {
     for (int x = 0; x < cleaned.width; ++x) {
-      const int l = src_objects.at(x, y);
-      if (l <= 0 || l > n_obj || blob_of[l] < 0) continue;
-      Blob& b = blobs[static_cast<std::size_t>(blob_of[l])];
+      const std::size_t i = cleaned.index(x, y);
+      const int l = src_objects.labels[i];
+      if (l <= 0 || l > n_obj) continue;
+      int node = 0;
+      if (whole[static_cast<std::size_t>(l)])
+        node = l;
+      else if (comps.labels[i] > 0)
+        node = n_obj + comps.labels[i];
+      else
+        continue;
+      Blob& b = blobOf(node);
+      if (b.object_labels.empty() || b.object_labels.back() != l) b.object_labels.push_back(l);
       b.mask.set(x, y);
       b.cells.emplace_back(x, y);
       ++b.area;
       b.bbox_min = b.bbox_min.cwiseMin(Eigen::Vector2i(x, y));
       b.bbox_max = b.bbox_max.cwiseMax(Eigen::Vector2i(x, y));
     }
+  }
+  for (Blob& b : blobs) {
+    std::sort(b.object_labels.begin(), b.object_labels.end());
+    b.object_labels.erase(std::unique(b.object_labels.begin(), b.object_labels.end()),
+                          b.object_labels.end());
   }
   return blobs;
 }
@@ -205,7 +246,7 @@ HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
   }
   out.cleaned = cleanChangeMask(out.raw, cfg);  // validates the cleaning parameters
   out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
-  out.blobs = changedBlobs(out.cleaned, src_objects);
+  out.blobs = changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap, largeObjectCells(cfg));
   out.blob_mask = Mask2D::zeros(src.geometry());
   for (const Blob& b : out.blobs) {
     for (const Eigen::Vector2i& c : b.cells) out.blob_mask.set(c.x(), c.y());

@@ -442,6 +442,49 @@ TEST(PlaneMaps, WhatStandsBeyondThePlaneExtentIsUnknown) {
   EXPECT_EQ(all.objects.numObjects(), 3);
 }
 
+TEST(ComparePlanePair, ABoxTakenOffALargeComponentIsTheBoxNotTheComponent) {
+  // A 60 x 60 cm platform 3 cm high (one object-map component of 86 x 86 cells: a shelf's back
+  // panel in a wall's band is such a component) with a 10 x 10 x 8 cm box on it, then without
+  // the box. The box's change covers 4 % of the component: the removed region is the box's
+  // footprint (14 x 14 cells, dilated by one: at most 16 x 16), not the whole platform, which
+  // DESIGN's plain growth (blob_min_overlap 0) reports.
+  const auto platform = [](double u, double v) {
+    return std::abs(u) < 0.3 && std::abs(v) < 0.3 ? 0.03 : 0.0;
+  };
+  const auto with_box = [&](double u, double v) {
+    return u > 0.05 && u < 0.15 && v > 0.05 && v < 0.15 ? 0.11 : platform(u, v);
+  };
+  const PlaneSdf before = floorWith(with_box), after = floorWith(platform);
+  PlaneMatch match;
+  match.source_id = match.target_id = 0;
+  for (const double min_overlap : {Config{}.blob_min_overlap, 0.0}) {
+    SCOPED_TRACE(min_overlap);
+    Config cfg;
+    cfg.blob_min_overlap = min_overlap;
+    const PlaneMaps src = computePlaneMaps(before, {before}, cfg);
+    const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg);
+    ASSERT_EQ(src.objects.numObjects(), 1);
+    ASSERT_GE(src.objects.object(1).area, largeObjectCells(cfg));
+    PlanePairResult res;
+    DetectOptions opt;
+    opt.keep_stages = true;
+    const std::vector<CandidateChange> out =
+        comparePlanePair(before, src, after, tgt, match, false, {}, {}, cfg, opt, &res);
+    ASSERT_EQ(out.size(), 1u);
+    const ChangeRegion& r = out[0].region;
+    EXPECT_EQ(r.verdict, BlobValidation::Verdict::Changed);
+    if (min_overlap > 0.0) {
+      ASSERT_EQ(res.change.blobs.size(), 1u);
+      EXPECT_TRUE(res.change.blobs[0].partial);
+      EXPECT_GE(r.columns.size(), 14u * 14u);
+      EXPECT_LE(r.columns.size(), 16u * 16u);
+      EXPECT_LT((r.centroid.head<2>() - Eigen::Vector2d(0.10, 0.10)).norm(), 0.01);
+    } else {
+      EXPECT_EQ(r.columns.size(), static_cast<std::size_t>(src.objects.object(1).area));
+    }
+  }
+}
+
 TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
   ChangeDetector det(beforeMap(), Config{});
   std::vector<ChangeEvent> heard;

@@ -206,6 +206,76 @@ TEST(HeightCompare, BlobsGrowToWholeObjectComponent) {
   EXPECT_THROW(changedBlobs(Mask2D::zeros(other), objects), Error);
 }
 
+TEST(HeightCompare, BlobsTakeOnlyTheChangedSliverOfALargeComponent) {
+  // A 50x30-cell component (a shelf with its back panel in a wall's band, 1500 cells) and a 6x6
+  // box. With large_cells 1000, a change on 16 of the shelf's cells (1 %, below min_overlap 5 %)
+  // keeps only those cells; the box, touched on 4 of its 36 cells, still grows whole.
+  Config cfg;
+  HeightMap src = render({{5, 5, 50, 30, 0.05f}, {40, 45, 6, 6, 0.08f}});
+  const ObjectMap objects = computeObjectMap(src, cfg);
+  ASSERT_EQ(objects.numObjects(), 2);
+  const int shelf = objects.at(5, 5), box = objects.at(40, 45);
+  Mask2D mask = Mask2D::zeros(src.geometry());
+  const auto fill = [&](int x0, int y0, int w, int h) {
+    for (int y = y0; y < y0 + h; ++y)
+      for (int x = x0; x < x0 + w; ++x) mask.set(x, y);
+  };
+  fill(10, 10, 4, 4);  // a sliver of the shelf ...
+  fill(45, 25, 4, 4);  // ... another one, away from the first
+  fill(38, 43, 4, 4);  // 4 cells of the box, 12 off every object
+  std::vector<Blob> blobs = changedBlobs(mask, objects, 0.05, 1000);
+  ASSERT_EQ(blobs.size(), 3u);
+  // Whole objects first, then the slivers by component (raster order of their first cell).
+  EXPECT_FALSE(blobs[0].partial);
+  EXPECT_EQ(blobs[0].area, 36);
+  EXPECT_EQ(blobs[0].object_labels, std::vector<int>{box});
+  EXPECT_TRUE(blobs[1].partial);
+  EXPECT_EQ(blobs[1].area, 16);
+  EXPECT_EQ(blobs[1].bbox_min, Eigen::Vector2i(10, 10));
+  EXPECT_EQ(blobs[1].bbox_max, Eigen::Vector2i(13, 13));
+  EXPECT_EQ(blobs[1].object_labels, std::vector<int>{shelf});
+  EXPECT_TRUE(blobs[2].partial);
+  EXPECT_EQ(blobs[2].area, 16);
+  EXPECT_EQ(blobs[2].bbox_min, Eigen::Vector2i(45, 25));
+
+  // Two slivers of 40 cells each (5.3 % together, 2.7 % each) stay slivers: the overlap is per
+  // change cluster.
+  Mask2D two = Mask2D::zeros(src.geometry());
+  for (int y = 10; y < 15; ++y)
+    for (int x = 10; x < 18; ++x) {
+      two.set(x, y);
+      two.set(x + 25, y + 10);
+    }
+  blobs = changedBlobs(two, objects, 0.05, 1000);
+  ASSERT_EQ(blobs.size(), 2u);
+  EXPECT_TRUE(blobs[0].partial && blobs[1].partial);
+  EXPECT_EQ(blobs[0].area + blobs[1].area, 80);
+  // A change cluster on 100 of its cells (6.7 %) grows into the whole shelf, and its slivers
+  // join it; so does any change when
+  // min_overlap is 0 (DESIGN's blobs) or the shelf is below large_cells.
+  fill(20, 20, 10, 10);
+  blobs = changedBlobs(mask, objects, 0.05, 1000);
+  ASSERT_EQ(blobs.size(), 2u);
+  EXPECT_EQ(blobs[0].area, 1500);
+  EXPECT_FALSE(blobs[0].partial);
+  Mask2D sliver = Mask2D::zeros(src.geometry());
+  sliver.set(10, 10);
+  for (const auto& [overlap, large] : {std::pair<double, int>{0.0, 1000}, {0.05, 1501}}) {
+    blobs = changedBlobs(sliver, objects, overlap, large);
+    ASSERT_EQ(blobs.size(), 1u);
+    EXPECT_EQ(blobs[0].area, 1500);
+  }
+  blobs = changedBlobs(sliver, objects, 0.05, 1500);
+  ASSERT_EQ(blobs.size(), 1u);
+  EXPECT_EQ(blobs[0].area, 1);
+
+  // The rule, and Config::blob_large_area in cells: 0.1 m2 of 7 mm cells is 2041 cells.
+  EXPECT_TRUE(sliverOf(74, 1500, 0.05, 1000));
+  EXPECT_FALSE(sliverOf(75, 1500, 0.05, 1000));
+  EXPECT_FALSE(sliverOf(1, 999, 0.05, 1000));
+  EXPECT_EQ(largeObjectCells(cfg), 2041);
+}
+
 TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {
   const Config cfg;
   const std::vector<Box> scene{kObject, {8, 40, 6, 12, 0.05f}};

@@ -71,6 +71,10 @@ TEST(Config, BadFilesNameFileAndKey) {
   EXPECT_NE(errorOf(R"({"voxel_size": "big"})").find("key 'voxel_size'"), std::string::npos);
   EXPECT_NE(errorOf(R"({"bins_phi": 2.5})").find("integer"), std::string::npos);
   EXPECT_NE(errorOf(R"({"voxel_size": -1})").find("voxel_size must be"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"blob_min_overlap": 1.5})").find("blob_min_overlap must be"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"blob_large_area": -0.1})").find("blob_large_area must be"),
+            std::string::npos);
   EXPECT_NE(errorOf(R"({"up": [0, 0]})").find("key 'up'"), std::string::npos);
   EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
 }
