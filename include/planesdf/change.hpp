@@ -26,6 +26,8 @@
 #include <functional>
 #include <limits>
 #include <map>
+#include <memory>
+#include <mutex>
 #include <string>
 #include <utility>
 #include <vector>
@@ -180,20 +182,38 @@ struct CellPoints {
 CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
                             const std::vector<Eigen::Vector3f>& points, const Config& cfg);
 
+namespace detail {
+/// The band points of one PlaneMaps, bucketed once on first use (see bandPoints).
+struct LazyCellPoints {
+  const std::vector<Eigen::Vector3f>* source = nullptr;  ///< the map's points()
+  std::once_flag once;
+  CellPoints cells;
+};
+}  // namespace detail
+
 /// The 2D maps of one plane (computed once per plane and volume revision).
 struct PlaneMaps {
   HeightMap heights;
   ObjectMap objects;
   std::uint64_t revision = 0;  ///< TsdfVolume::revision() they were computed at
-  CellPoints points;           ///< the map's points by cell, when computePlaneMaps had them
+  /// The map's points by cell, bucketed on first use by bandPoints() when computePlaneMaps was
+  /// given the points (most planes of a scene pair have no change whose points are needed);
+  /// shared by copies. Null without points.
+  std::shared_ptr<detail::LazyCellPoints> points;
 };
 /// The height and object maps of `plane`, where cells whose surface lies on another,
 /// non-parallel plane of the same map (`map_planes`: a wall rising through a table's band, a
 /// table crossing a wall's band) are unknown: they are structure, which that plane's own PlaneSDF
-/// compares. With `points` (the map's points()), also their buckets (see CellPoints); without,
-/// comparePlanePair buckets them itself.
+/// compares. With `points` (the map's points(), which must outlive the maps), bandPoints()
+/// buckets them on first use, once; without, comparePlanePair buckets them itself.
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
                            const Config& cfg, const std::vector<Eigen::Vector3f>* points = nullptr);
+
+/// The band points of `maps` (of `plane`) by cell when computePlaneMaps was given `points`:
+/// bucketBandPoints on the first call (thread-safe; later calls and copies of `maps` share the
+/// result); nullptr when `maps` holds no points or other ones.
+const CellPoints* bandPoints(const PlaneMaps& maps, const Plane& plane,
+                             const std::vector<Eigen::Vector3f>& points, const Config& cfg);
 
 /// A blob of one plane pair that the 3D validation did not reject, as one side of an event.
 struct CandidateChange {

@@ -477,8 +477,20 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
       }
   m.objects = computeObjectMap(m.heights, cfg);
   m.revision = plane.volume.revision();
-  if (points != nullptr) m.points = bucketBandPoints(plane.plane, m.heights, *points, cfg);
+  if (points != nullptr) {
+    m.points = std::make_shared<detail::LazyCellPoints>();
+    m.points->source = points;
+  }
   return m;
+}
+
+const CellPoints* bandPoints(const PlaneMaps& maps, const Plane& plane,
+                             const std::vector<Eigen::Vector3f>& points, const Config& cfg) {
+  if (!maps.points || maps.points->source != &points) return nullptr;
+  detail::LazyCellPoints& lazy = *maps.points;
+  std::call_once(lazy.once,
+                 [&] { lazy.cells = bucketBandPoints(plane, maps.heights, points, cfg); });
+  return lazy.cells.builtFor(points.size()) ? &lazy.cells : nullptr;
 }
 
 std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMaps& src_maps,
@@ -513,7 +525,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const auto cellsOf = [&](const PlaneMaps& maps, const PlaneSdf& plane, const HeightMap& hm,
                            const std::vector<Eigen::Vector3f>& points,
                            CellPoints& own) -> const CellPoints& {
-    if (maps.points.builtFor(points.size())) return maps.points;
+    if (const CellPoints* shared = bandPoints(maps, plane.plane, points, cfg)) return *shared;
     if (!own.builtFor(points.size())) own = bucketBandPoints(plane.plane, hm, points, cfg);
     return own;
   };

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <functional>
 #include <sstream>
+#include <thread>
 
 #include "analytic_scene.hpp"
 #include "planesdf/change.hpp"
@@ -483,6 +484,39 @@ TEST(ComparePlanePair, ABoxTakenOffALargeComponentIsTheBoxNotTheComponent) {
       EXPECT_EQ(r.columns.size(), static_cast<std::size_t>(src.objects.object(1).area));
     }
   }
+}
+
+TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
+  // A floor with a 10 cm box; points on the box top, on the floor and far above the band.
+  const PlaneSdf floor = floorWith([](double u, double v) {
+    return std::abs(u - 0.1) < 0.05 && std::abs(v) < 0.05 ? 0.10 : 0.0;
+  });
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 20; ++i) {
+    points.emplace_back(0.08f + 0.002f * i, 0.0f, 0.10f);  // box top: in the band
+    points.emplace_back(-0.2f, 0.01f * i, 0.0f);           // floor: below h_obj / 2
+    points.emplace_back(0.1f, 0.0f, 0.9f);                 // above the band
+  }
+  const Config cfg;
+  const PlaneMaps maps = computePlaneMaps(floor, {floor}, cfg, &points);
+  ASSERT_TRUE(maps.points);
+  const CellPoints expected = bucketBandPoints(floor.plane, maps.heights, points, cfg);
+  EXPECT_EQ(expected.index.size(), 20u);
+  // Built once: two threads asking at the same time get the same buckets, and so does a copy.
+  const CellPoints* got[2] = {nullptr, nullptr};
+  std::thread t([&] { got[1] = bandPoints(maps, floor.plane, points, cfg); });
+  got[0] = bandPoints(maps, floor.plane, points, cfg);
+  t.join();
+  ASSERT_NE(got[0], nullptr);
+  EXPECT_EQ(got[0], got[1]);
+  EXPECT_EQ(got[0]->start, expected.start);
+  EXPECT_EQ(got[0]->index, expected.index);
+  const PlaneMaps copy = maps;
+  EXPECT_EQ(bandPoints(copy, floor.plane, points, cfg), got[0]);
+  // Other points, or maps computed without points: none (comparePlanePair buckets its own).
+  const std::vector<Eigen::Vector3f> other = points;
+  EXPECT_EQ(bandPoints(maps, floor.plane, other, cfg), nullptr);
+  EXPECT_EQ(bandPoints(computePlaneMaps(floor, {floor}, cfg), floor.plane, points, cfg), nullptr);
 }
 
 TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
