@@ -60,21 +60,20 @@ struct Blob {
 /// `min_overlap` of them.
 bool sliverOf(int changed_cells, int object_cells, double min_overlap, int large_cells);
 
-/// Config::blob_large_area in cells of the height-map grid (voxel_size squared), rounded up.
-int largeObjectCells(const Config& cfg);
+/// Config::blob_large_area in cells of a grid of `cell_size` (m), rounded up.
+int largeObjectCells(const Config& cfg, double cell_size);
 
-/// The connected components (8-connected) of (cleaned ∩ object cells of `src_objects`), each
-/// grown to the whole object-map component(s) it overlaps; components growing into a common
-/// object are merged into one blob. An object that every component on it touches only a sliver
-/// of (sliverOf with `min_overlap` and `large_cells`) is not grown into: each such component is
-/// a blob of its own cells (a change cluster that overlaps an object highly selects it):
-/// the paper selects the objects the change clusters overlap highly, and a box swapped on a
-/// shelf changes a sliver of the shelf, which is one object of the wall's plane. min_overlap = 0
-/// always grows (DESIGN's blobs). Changed cells off any object are not blobs (in the
-/// source→target direction they are places where something appeared: the reverse run reports
-/// them). Blobs holding whole objects come first, ordered by their smallest object label, then
-/// the blobs of slivers only (Blob::partial), by component. Throws planesdf::Error("change", ...)
-/// when the two grids differ.
+/// The connected components (8-connected) of (cleaned ∩ object cells of `src_objects`), grown
+/// to the object-map component they lie on (one each: distinct objects are never 8-adjacent);
+/// the components on one object make one blob. An object that every component on it touches
+/// only a sliver of (sliverOf with `min_overlap` and `large_cells`) is not grown into: each such
+/// component is a blob of its own cells (Blob::partial). The paper selects the objects the
+/// change clusters overlap highly, and a box swapped on a shelf changes a sliver of the shelf,
+/// which is one object of the wall's plane. min_overlap = 0 always grows (DESIGN's blobs).
+/// Changed cells off any object are not blobs (in the source→target direction they are places
+/// where something appeared: the reverse run reports them). Blobs of whole objects come first,
+/// by object label, then the slivers, by component (raster order of their first cell). Throws
+/// planesdf::Error("change", ...) when the two grids differ.
 std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects,
                                double min_overlap = 0.0, int large_cells = 0);
 

@@ -529,26 +529,16 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if (!own.builtFor(points.size())) own = bucketBandPoints(plane.plane, hm, points, cfg);
     return own;
   };
-  // Per target object label, the indices of the target points standing on it (on its cells, from
-  // lo_flat to the cell's height + one voxel), computed once, when a candidate first needs them
-  // (each label's in cell order; the readers sort what they pick).
-  std::map<int, std::vector<std::uint32_t>> target_object_points;
-  bool target_object_points_done = false;
-  const auto target_objects_points = [&]() -> const std::map<int, std::vector<std::uint32_t>>& {
-    if (target_object_points_done) return target_object_points;
-    target_object_points_done = true;
-    const CellPoints& cells = cellsOf(tgt_maps, tgt, ht, target_points, own_target_cells);
-    for (std::size_t c = 0; c < ot.labels.size(); ++c) {
-      const int label = ot.labels[c];
-      if (label <= 0) continue;
-      const double hi = static_cast<double>(ht.heights[c]) + vs;
-      for (std::uint32_t k = cells.start[c]; k < cells.start[c + 1]; ++k) {
-        const std::uint32_t i = cells.index[k];
-        const double z = tgt.plane.toLocal(target_points[i].cast<double>()).z();
-        if (z >= lo_flat && z <= hi) target_object_points[label].push_back(i);
-      }
+  // Appends the indices of the target points standing on target cell `c` (row-major): from
+  // lo_flat to the cell's height + one voxel, in cell order.
+  const auto appendStandingOn = [&](const CellPoints& cells, std::size_t c,
+                                    std::vector<std::uint32_t>& out) {
+    const double hi = static_cast<double>(ht.heights[c]) + vs;
+    for (std::uint32_t k = cells.start[c]; k < cells.start[c + 1]; ++k) {
+      const std::uint32_t i = cells.index[k];
+      const double z = tgt.plane.toLocal(target_points[i].cast<double>()).z();
+      if (z >= lo_flat && z <= hi) out.push_back(i);
     }
-    return target_object_points;
   };
 
   // Per target object label, its cells (row-major indices, raster order), once a candidate
@@ -562,7 +552,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     return label_cells;
   };
 
-  const int large_cells = largeObjectCells(cfg);
+  const int large_cells = largeObjectCells(cfg, ht.cell_size);
   std::vector<CandidateChange> out;
   // Per cell: index of the candidate it belongs to and its height range.
   std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
@@ -689,23 +679,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       to.shape = signatureOf(ht, cells);
       finishRegion(to, tgt.volume, tgt.plane);
       // Its points: those standing on its cells within its heights (input order).
+      const CellPoints& pc = cellsOf(tgt_maps, tgt, ht, target_points, own_target_cells);
       std::vector<std::uint32_t> picked;
-      for (const int label : whole) {
-        const auto it = target_objects_points().find(label);
-        if (it != target_objects_points().end())
-          picked.insert(picked.end(), it->second.begin(), it->second.end());
-      }
-      if (!partial.empty()) {
-        const CellPoints& pc = cellsOf(tgt_maps, tgt, ht, target_points, own_target_cells);
-        for (const std::size_t c : partial) {
-          const double hi = static_cast<double>(ht.heights[c]) + vs;
-          for (std::uint32_t k = pc.start[c]; k < pc.start[c + 1]; ++k) {
-            const std::uint32_t i = pc.index[k];
-            const double z = tgt.plane.toLocal(target_points[i].cast<double>()).z();
-            if (z >= lo_flat && z <= hi) picked.push_back(i);
-          }
-        }
-      }
+      for (const std::size_t c : flat) appendStandingOn(pc, c, picked);
       std::sort(picked.begin(), picked.end());
       for (const std::uint32_t i : picked) to.points.push_back(target_points[i]);
     }

@@ -102,8 +102,8 @@ bool sliverOf(int changed_cells, int object_cells, double min_overlap, int large
   return object_cells >= large_cells && changed_cells < min_overlap * object_cells;
 }
 
-int largeObjectCells(const Config& cfg) {
-  const double cells = cfg.blob_large_area / (cfg.voxel_size * cfg.voxel_size);
+int largeObjectCells(const Config& cfg, double cell_size) {
+  const double cells = cfg.blob_large_area / (cell_size * cell_size);
   return cells >= 2e9 ? std::numeric_limits<int>::max() : static_cast<int>(std::ceil(cells));
 }
 
@@ -126,8 +126,8 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
   for (std::size_t i = 0; i < inter.cells.size(); ++i)
     if (comps.labels[i] > 0)
       comp_object[static_cast<std::size_t>(comps.labels[i])] = src_objects.labels[i];
-  // An object grows whole into the blob of its changed components unless each of them touches
-  // only a sliver of it (then each keeps only its own cells).
+  // An object grows whole into one blob, which takes every component on it, unless each of them
+  // touches only a sliver of it: then each such component is a blob of its own cells.
   std::vector<char> whole(static_cast<std::size_t>(n_obj) + 1, 0);
   for (int c = 1; c <= comps.count(); ++c) {
     const int l = comp_object[static_cast<std::size_t>(c)];
@@ -135,73 +135,41 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
                   min_overlap, large_cells))
       whole[static_cast<std::size_t>(l)] = 1;
   }
-  // Union-find over nodes: objects 1..n_obj, then the components of inter (n_obj + c). A
-  // component joins the whole objects it touches, so a component touching several objects and
-  // objects touched by several components end up in one blob. The root is the smallest node.
-  const int n_nodes = n_obj + comps.count() + 1;
-  std::vector<int> parent(static_cast<std::size_t>(n_nodes));
-  for (std::size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
-  auto find = [&parent](int a) {
-    while (parent[a] != a) a = parent[a] = parent[parent[a]];
-    return a;
-  };
-  const auto unite = [&](int a, int b) {
-    a = find(a);
-    b = find(b);
-    if (a != b) parent[std::max(a, b)] = std::min(a, b);
-  };
-  for (int c = 1; c <= comps.count(); ++c) {
-    const int l = comp_object[static_cast<std::size_t>(c)];
-    if (whole[static_cast<std::size_t>(l)]) unite(n_obj + c, l);
-  }
-  // One blob per root, ordered by root: blobs holding whole objects by their smallest object
-  // label, then blobs of partial objects only, by component.
-  std::vector<int> blob_of(static_cast<std::size_t>(n_nodes), -1);
-  std::vector<Blob> blobs;
-  const auto blobOf = [&](int node) -> Blob& {
-    const int r = find(node);
-    if (blob_of[static_cast<std::size_t>(r)] < 0) {
-      blob_of[static_cast<std::size_t>(r)] = static_cast<int>(blobs.size());
-      Blob b;
-      b.mask = Mask2D::zeros(cleaned.geometry());
-      b.bbox_min = Eigen::Vector2i(cleaned.width, cleaned.height);
-      b.bbox_max = Eigen::Vector2i(-1, -1);
-      blobs.push_back(std::move(b));
-    }
-    return blobs[static_cast<std::size_t>(blob_of[static_cast<std::size_t>(r)])];
-  };
-  std::vector<int> roots;
+  // Blob keys: whole objects 1..n_obj by label, then sliver components n_obj + c by component.
+  std::vector<int> blob_of(static_cast<std::size_t>(n_obj + comps.count()) + 1, -1);
+  int n_blobs = 0;
   for (int l = 1; l <= n_obj; ++l)
-    if (whole[static_cast<std::size_t>(l)]) roots.push_back(find(l));
-  for (int c = 1; c <= comps.count(); ++c) roots.push_back(find(n_obj + c));
-  std::sort(roots.begin(), roots.end());
-  roots.erase(std::unique(roots.begin(), roots.end()), roots.end());
-  for (int r : roots) blobOf(r).partial = r > n_obj;  // the smallest node is an object if any
+    if (whole[static_cast<std::size_t>(l)]) blob_of[static_cast<std::size_t>(l)] = n_blobs++;
+  for (int c = 1; c <= comps.count(); ++c)
+    if (!whole[static_cast<std::size_t>(comp_object[static_cast<std::size_t>(c)])])
+      blob_of[static_cast<std::size_t>(n_obj + c)] = n_blobs++;
+  std::vector<Blob> blobs(static_cast<std::size_t>(n_blobs));
+  for (std::size_t k = 0; k < blob_of.size(); ++k) {
+    if (blob_of[k] < 0) continue;
+    Blob& b = blobs[static_cast<std::size_t>(blob_of[k])];
+    b.mask = Mask2D::zeros(cleaned.geometry());
+    b.bbox_min = Eigen::Vector2i(cleaned.width, cleaned.height);
+    b.bbox_max = Eigen::Vector2i(-1, -1);
+    b.partial = static_cast<int>(k) > n_obj;
+    b.object_labels = {b.partial ? comp_object[k - static_cast<std::size_t>(n_obj)]
+                                 : static_cast<int>(k)};
+  }
   for (int y = 0; y < cleaned.height; ++y) {
     for (int x = 0; x < cleaned.width; ++x) {
       const std::size_t i = cleaned.index(x, y);
       const int l = src_objects.labels[i];
       if (l <= 0 || l > n_obj) continue;
-      int node = 0;
-      if (whole[static_cast<std::size_t>(l)])
-        node = l;
-      else if (comps.labels[i] > 0)
-        node = n_obj + comps.labels[i];
-      else
-        continue;
-      Blob& b = blobOf(node);
-      if (b.object_labels.empty() || b.object_labels.back() != l) b.object_labels.push_back(l);
+      const int key = whole[static_cast<std::size_t>(l)] ? l
+                      : comps.labels[i] > 0              ? n_obj + comps.labels[i]
+                                                         : 0;
+      if (key == 0) continue;
+      Blob& b = blobs[static_cast<std::size_t>(blob_of[static_cast<std::size_t>(key)])];
       b.mask.set(x, y);
       b.cells.emplace_back(x, y);
       ++b.area;
       b.bbox_min = b.bbox_min.cwiseMin(Eigen::Vector2i(x, y));
       b.bbox_max = b.bbox_max.cwiseMax(Eigen::Vector2i(x, y));
     }
-  }
-  for (Blob& b : blobs) {
-    std::sort(b.object_labels.begin(), b.object_labels.end());
-    b.object_labels.erase(std::unique(b.object_labels.begin(), b.object_labels.end()),
-                          b.object_labels.end());
   }
   return blobs;
 }
@@ -246,7 +214,8 @@ HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
   }
   out.cleaned = cleanChangeMask(out.raw, cfg);  // validates the cleaning parameters
   out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
-  out.blobs = changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap, largeObjectCells(cfg));
+  out.blobs = changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap,
+                           largeObjectCells(cfg, src.cell_size));
   out.blob_mask = Mask2D::zeros(src.geometry());
   for (const Blob& b : out.blobs) {
     for (const Eigen::Vector2i& c : b.cells) out.blob_mask.set(c.x(), c.y());

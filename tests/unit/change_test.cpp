@@ -465,7 +465,7 @@ TEST(ComparePlanePair, ABoxTakenOffALargeComponentIsTheBoxNotTheComponent) {
     const PlaneMaps src = computePlaneMaps(before, {before}, cfg);
     const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg);
     ASSERT_EQ(src.objects.numObjects(), 1);
-    ASSERT_GE(src.objects.object(1).area, largeObjectCells(cfg));
+    ASSERT_GE(src.objects.object(1).area, largeObjectCells(cfg, cfg.voxel_size));
     PlanePairResult res;
     DetectOptions opt;
     opt.keep_stages = true;

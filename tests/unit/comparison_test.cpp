@@ -273,7 +273,7 @@ TEST(HeightCompare, BlobsTakeOnlyTheChangedSliverOfALargeComponent) {
   EXPECT_TRUE(sliverOf(74, 1500, 0.05, 1000));
   EXPECT_FALSE(sliverOf(75, 1500, 0.05, 1000));
   EXPECT_FALSE(sliverOf(1, 999, 0.05, 1000));
-  EXPECT_EQ(largeObjectCells(cfg), 2041);
+  EXPECT_EQ(largeObjectCells(cfg, cfg.voxel_size), 2041);
 }
 
 TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {
