@@ -126,7 +126,7 @@ std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, con
 
 namespace {
 
-/// A cell index no grid reaches (scoreCandidate's far or non-finite coordinates).
+/// A cell index no grid reaches (place's far or non-finite coordinates).
 constexpr int kFarCell = -(1 << 30);
 /// Smallest improvement refineInPlane accepts (see there).
 constexpr int kMinGainCells = 20;
@@ -174,18 +174,39 @@ struct Score {
   double mean_abs = 0.0;
 };
 
-/// Scores the samples moved by a yaw `yaw` about `pivot` then a shift `shift` (target frame).
+/// Where a yaw `yaw` about `pivot` then a shift `shift` (target frame) puts each sample: its
+/// target cell (x, y), unchecked. Far or non-finite coordinates get kFarCell, outside every
+/// grid whatever whole-cell offset scorePlaced adds.
+struct Placement {
+  std::vector<int> x, y;
+};
+
+Placement place(const std::vector<Sample>& samples, const HeightMap& tgt,
+                const Eigen::Vector2d& pivot, double yaw, const Eigen::Vector2d& shift) {
+  const double c = std::cos(yaw);
+  const double s = std::sin(yaw);
+  const double inv = 1.0 / tgt.cell_size;
+  Placement p;
+  p.x.resize(samples.size());
+  p.y.resize(samples.size());
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const Eigen::Vector2d d = samples[i].uv - pivot;
+    const double u = pivot.x() + c * d.x() - s * d.y() + shift.x();
+    const double v = pivot.y() + s * d.x() + c * d.y() + shift.y();
+    p.x[i] = detail::floorToIntOr(u * inv, kFarCell) - tgt.i0;
+    p.y[i] = detail::floorToIntOr(v * inv, kFarCell) - tgt.j0;
+  }
+  return p;
+}
+
+/// Scores the samples placed by `placement` and then moved by (ox, oy) whole cells.
 /// With `slack` > 0 a sample agrees when any target cell within `slack` cells (Chebyshev) agrees
 /// (the coarse search: its steps are 2 cells, so the right answer is at most 1 cell away).
 /// Stops early, returning a partial score, once the capped cost passes `max_cost` (it only
 /// grows, so such a candidate cannot beat one with that cost).
-Score scoreCandidate(const std::vector<Sample>& samples, const Groups& groups, const HeightMap& tgt,
-                     const Eigen::Vector2d& pivot, double yaw, const Eigen::Vector2d& shift,
-                     double delta_h, int slack = 0,
-                     int max_cost = std::numeric_limits<int>::max()) {
-  const double c = std::cos(yaw);
-  const double s = std::sin(yaw);
-  const double inv = 1.0 / tgt.cell_size;
+Score scorePlaced(const std::vector<Sample>& samples, const Groups& groups, const HeightMap& tgt,
+                  const Placement& placement, int ox, int oy, double delta_h, int slack = 0,
+                  int max_cost = std::numeric_limits<int>::max()) {
   const double cap = 4.0 * delta_h;
   Score sc;
   double sum = 0.0;
@@ -200,13 +221,12 @@ Score scoreCandidate(const std::vector<Sample>& samples, const Groups& groups, c
     if (++groups.count[g] <= groups.cap[g]) ++sc.cost;
     return sc.cost <= max_cost;
   };
-  for (const Sample& smp : samples) {
-    const Eigen::Vector2d d = smp.uv - pivot;
-    const double u = pivot.x() + c * d.x() - s * d.y() + shift.x();
-    const double v = pivot.y() + s * d.x() + c * d.y() + shift.y();
-    // Cell (x, y) when inside the grid (far or non-finite coordinates are outside).
-    int x = detail::floorToIntOr(u * inv, kFarCell) - tgt.i0;
-    int y = detail::floorToIntOr(v * inv, kFarCell) - tgt.j0;
+  const int* px = placement.x.data();
+  const int* py = placement.y.data();
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const Sample& smp = samples[i];
+    int x = px[i] + ox;
+    int y = py[i] + oy;
     const bool inside = tgt.inBounds(x, y);
     if (!inside) x = y = 0;
     const float ht = inside ? tgt.at(x, y) : kUnobserved;
@@ -366,7 +386,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   const Groups groups = groupsOf(samples, n_groups);
 
   const Score initial =
-      scoreCandidate(samples, groups, tgt, pivot, 0.0, Eigen::Vector2d::Zero(), cfg.delta_h);
+      scorePlaced(samples, groups, tgt, place(samples, tgt, pivot, 0.0, Eigen::Vector2d::Zero()), 0,
+                  0, cfg.delta_h);
   out.compared_before = out.compared_after = initial.compared;
   out.mismatches_before = out.mismatches_after = initial.mismatches;
   out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
@@ -379,10 +400,30 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
     double du = 0.0, dv = 0.0, yaw_deg = 0.0;
     double motion() const { return std::hypot(du, dv) + 0.01 * std::abs(yaw_deg); }
   };
+  // Whole cells in `d` metres, or INT_MIN when d is no whole number of target cells.
+  const auto wholeCells = [&](double d) {
+    const double c = d / tgt.cell_size;
+    const double r = std::round(c);
+    return std::abs(c - r) < 1e-6 && std::abs(r) < 1e6 ? static_cast<int>(r)
+                                                       : std::numeric_limits<int>::min();
+  };
+  // Placements of a sample set per yaw (shift 0): a candidate whose shift is whole cells only
+  // adds an offset to them, so each sample is rotated once per yaw, not once per candidate.
+  struct YawPlacements {
+    const std::vector<Sample>* samples = nullptr;
+    std::vector<std::pair<double, Placement>> by_yaw;
+    const Placement& at(const HeightMap& t, const Eigen::Vector2d& pv, double yaw_deg) {
+      for (const auto& [y, p] : by_yaw)
+        if (y == yaw_deg) return p;
+      by_yaw.emplace_back(yaw_deg,
+                          place(*samples, t, pv, yaw_deg * kPi / 180.0, Eigen::Vector2d::Zero()));
+      return by_yaw.back().second;
+    }
+  };
   // Scores every candidate of a grid centred on `c` (ties keep the smaller motion).
-  const auto gridSearch = [&](const std::vector<Sample>& smp, const Groups& grp, const Cand& c,
-                              int ns, double st, int ny, double yst, int slack, Cand* best_c,
-                              Score* best_s) {
+  const auto gridSearch = [&](const std::vector<Sample>& smp, YawPlacements& placed,
+                              const Groups& grp, const Cand& c, int ns, double st, int ny,
+                              double yst, int slack, Cand* best_c, Score* best_s) {
     std::vector<Cand> cands;
     for (int iy = -ny; iy <= ny; ++iy)
       for (int iv = -ns; iv <= ns; ++iv)
@@ -398,9 +439,16 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
                      [](const Cand& x, const Cand& y) { return x.motion() < y.motion(); });
     bool any = false;
     for (const Cand& k : cands) {
-      const Score sc =
-          scoreCandidate(smp, grp, tgt, pivot, k.yaw_deg * kPi / 180.0, Eigen::Vector2d(k.du, k.dv),
-                         cfg.delta_h, slack, any ? best_s->cost : std::numeric_limits<int>::max());
+      const int max_cost = any ? best_s->cost : std::numeric_limits<int>::max();
+      const int ox = wholeCells(k.du), oy = wholeCells(k.dv);
+      const bool whole =
+          ox != std::numeric_limits<int>::min() && oy != std::numeric_limits<int>::min();
+      const Score sc = whole ? scorePlaced(smp, grp, tgt, placed.at(tgt, pivot, k.yaw_deg), ox, oy,
+                                           cfg.delta_h, slack, max_cost)
+                             : scorePlaced(smp, grp, tgt,
+                                           place(smp, tgt, pivot, k.yaw_deg * kPi / 180.0,
+                                                 Eigen::Vector2d(k.du, k.dv)),
+                                           0, 0, cfg.delta_h, slack, max_cost);
       if (!any || better(sc, *best_s)) {
         *best_s = sc;
         *best_c = k;
@@ -420,9 +468,10 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   sensitiveFirst(coarse_samples, tgt, cfg.delta_h, kSensitiveRadius);
   sensitiveFirst(samples, tgt, cfg.delta_h, kSensitiveRadius);
   const double cstep = 2.0 * step, cystep = std::max(1.0, ystep);
+  YawPlacements coarse_placed{&coarse_samples, {}}, placed{&samples, {}};
   Cand coarse;
   Score coarse_score;
-  gridSearch(coarse_samples, groupsOf(coarse_samples, n_groups), Cand{},
+  gridSearch(coarse_samples, coarse_placed, groupsOf(coarse_samples, n_groups), Cand{},
              static_cast<int>(std::floor(search.max_shift / cstep + 1e-9)), cstep,
              static_cast<int>(std::floor(search.max_yaw_deg / cystep + 1e-9)), cystep, 1, &coarse,
              &coarse_score);
@@ -432,11 +481,12 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   const int fine_yaw_steps = static_cast<int>(std::ceil(cystep / ystep));
   Cand fine;
   Score best;
-  gridSearch(samples, groups, coarse, 2, step, fine_yaw_steps, ystep, 0, &fine, &best);
+  gridSearch(samples, placed, groups, coarse, 2, step, fine_yaw_steps, ystep, 0, &fine, &best);
   if (coarse.du != 0.0 || coarse.dv != 0.0 || coarse.yaw_deg != 0.0) {
     Cand near;
     Score near_score;
-    gridSearch(samples, groups, Cand{}, 2, step, fine_yaw_steps, ystep, 0, &near, &near_score);
+    gridSearch(samples, placed, groups, Cand{}, 2, step, fine_yaw_steps, ystep, 0, &near,
+               &near_score);
     if (better(near_score, best) || (!better(best, near_score) && near.motion() < fine.motion())) {
       fine = near;
       best = near_score;

@@ -353,6 +353,35 @@ TEST(HeightCompare, RefinementWithGivenObjectMapsMatchesAndChecksThem) {
       Error);
 }
 
+TEST(HeightCompare, RefinementScoresWholeCellShiftsLikeAnyOtherShift) {
+  // Shifts of whole cells are scored by offsetting each yaw's placement of the samples; a step
+  // that is no whole number of cells places the samples per candidate. Both find the same drift
+  // (2 degrees, 2 cells along u, -1 along v) with the same figures.
+  const Config cfg;
+  const std::vector<Box> scene{
+      {40, 42, 10, 10, 0.08f}, {44, 8, 8, 14, 0.06f}, {6, 44, 12, 6, 0.1f}};
+  const HeightMap src = render(scene);
+  const HeightMap tgt = render(scene, yawShift(2.0 * kDeg, 2 * kCell, -kCell));
+  InPlaneSearch whole, general;
+  whole.shift_step = kCell;
+  general.shift_step = kCell * (1.0 + 1e-4);  // 0.7 um more: the same cells, general path
+  Pose T1 = Pose::Identity(), T2 = Pose::Identity();
+  const InPlaneRefinement a = refineInPlane(src, tgt, T1, cfg, whole);
+  const InPlaneRefinement b = refineInPlane(src, tgt, T2, cfg, general);
+  ASSERT_TRUE(a.applied);
+  EXPECT_TRUE(b.applied);
+  EXPECT_EQ(a.mismatches_before, b.mismatches_before);
+  EXPECT_EQ(a.mismatches_after, b.mismatches_after);
+  EXPECT_EQ(a.compared_after, b.compared_after);
+  // The yaw is about the samples' centre, so the shift differs from the render's.
+  EXPECT_NEAR(a.dyaw, 2.0 * kDeg, 0.5 * kDeg + 1e-9);
+  EXPECT_LE(a.mismatches_after * 5, a.mismatches_before);
+  EXPECT_NEAR(a.du, b.du, 1e-5);
+  EXPECT_NEAR(a.dv, b.dv, 1e-5);
+  EXPECT_EQ(a.dyaw, b.dyaw);
+  EXPECT_TRUE(T1.isApprox(T2, 1e-4));
+}
+
 TEST(HeightCompare, ShiftAndYawTogetherButRealRemovalStays) {
   const Config cfg;
   const std::vector<Box> statics{
