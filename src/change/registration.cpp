@@ -9,6 +9,10 @@
 #include <string>
 #include <vector>
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
+
 #include "../numeric.hpp"
 #include "planesdf/error.hpp"
 
@@ -199,63 +203,181 @@ Placement place(const std::vector<Sample>& samples, const HeightMap& tgt,
   return p;
 }
 
-/// Scores the samples placed by `placement` and then moved by (ox, oy) whole cells.
-/// With `slack` > 0 a sample agrees when any target cell within `slack` cells (Chebyshev) agrees
-/// (the coarse search: its steps are 2 cells, so the right answer is at most 1 cell away).
-/// Stops early, returning a partial score, once the capped cost passes `max_cost` (it only
-/// grows, so such a candidate cannot beat one with that cost).
-Score scorePlaced(const std::vector<Sample>& samples, const Groups& groups, const HeightMap& tgt,
-                  const Placement& placement, int ox, int oy, double delta_h, int slack = 0,
-                  int max_cost = std::numeric_limits<int>::max()) {
-  const double cap = 4.0 * delta_h;
+/// The samples as scorePlaced reads them, one array per field (8 at a time with AVX2).
+struct SampleArrays {
+  std::vector<float> h;
+  std::vector<std::int32_t> group;
+  std::vector<std::int32_t> mismatched;  ///< -1 (all bits) when Sample::mismatched, else 0
+};
+
+SampleArrays arraysOf(const std::vector<Sample>& samples) {
+  SampleArrays a;
+  for (const Sample& smp : samples) {
+    a.h.push_back(smp.h);
+    a.group.push_back(smp.group);
+    a.mismatched.push_back(smp.mismatched ? -1 : 0);
+  }
+  return a;
+}
+
+/// A running score (see scorePlaced).
+struct Scoring {
+  const SampleArrays& s;
+  const Groups& groups;
+  const HeightMap& tgt;
+  double delta_h, cap;
+  int slack, max_cost;
   Score sc;
   double sum = 0.0;
-  // Maps hold thousands of small objects: only the counts the last candidate raised are reset.
-  for (const int g : groups.touched) groups.count[static_cast<std::size_t>(g)] = 0;
-  groups.touched.clear();
-  // A mismatch of sample `smp`: false when the cost passed max_cost (stop).
-  const auto mismatch = [&](const Sample& smp) {
+
+  /// A mismatch of sample i: false when the cost passed max_cost (stop). The background's
+  /// share is not capped.
+  bool mismatch(std::size_t i) {
     ++sc.mismatches;
-    const auto g = static_cast<std::size_t>(smp.group);
-    if (groups.count[g] == 0) groups.touched.push_back(smp.group);
-    if (++groups.count[g] <= groups.cap[g]) ++sc.cost;
+    const std::int32_t g = s.group[i];
+    if (g == 0) {
+      ++sc.cost;
+    } else {
+      const auto gi = static_cast<std::size_t>(g);
+      if (groups.count[gi] == 0) groups.touched.push_back(g);
+      if (++groups.count[gi] <= groups.cap[gi]) ++sc.cost;
+    }
     return sc.cost <= max_cost;
-  };
-  const int* px = placement.x.data();
-  const int* py = placement.y.data();
-  for (std::size_t i = 0; i < samples.size(); ++i) {
-    const Sample& smp = samples[i];
-    int x = px[i] + ox;
-    int y = py[i] + oy;
+  }
+
+  /// Scores sample i at target cell (x, y); false when the cost passed max_cost (stop).
+  bool sample(std::size_t i, int x, int y) {
     const bool inside = tgt.inBounds(x, y);
-    if (!inside) x = y = 0;
     const float ht = inside ? tgt.at(x, y) : kUnobserved;
     if (ht == kUnobserved) {
       // The samples are the cells compared at the initial T. One that mismatched there and that
       // a candidate moves off the observed target still counts as a mismatch, so no candidate
       // wins by hiding differences in unobserved areas (the shadows beside objects in single
       // views); agreeing samples lost at the borders of the observed area do not count.
-      if (smp.mismatched) {
-        ++sc.compared;
-        if (!mismatch(smp)) return sc;
-        sum += cap;
-      }
-      continue;
+      if (s.mismatched[i] == 0) return true;
+      ++sc.compared;
+      if (!mismatch(i)) return false;
+      sum += cap;
+      return true;
     }
-    double diff = std::abs(static_cast<double>(ht) - static_cast<double>(smp.h));
+    const double h = static_cast<double>(s.h[i]);
+    double diff = std::abs(static_cast<double>(ht) - h);
     for (int dy = -slack; dy <= slack && diff > delta_h; ++dy)
       for (int dx = -slack; dx <= slack; ++dx) {
         if (!tgt.inBounds(x + dx, y + dy)) continue;
         const float hn = tgt.at(x + dx, y + dy);
         if (hn == kUnobserved) continue;
-        diff = std::min(diff, std::abs(static_cast<double>(hn) - static_cast<double>(smp.h)));
+        diff = std::min(diff, std::abs(static_cast<double>(hn) - h));
       }
     ++sc.compared;
-    if (diff > delta_h && !mismatch(smp)) return sc;
+    if (diff > delta_h && !mismatch(i)) return false;
     sum += std::min(diff, cap);
+    return true;
   }
-  sc.mean_abs = sc.compared > 0 ? sum / sc.compared : 0.0;
-  return sc;
+};
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/// The samples [0, n8) of scorePlaced 8 at a time: lanes observed in the target that agree, or
+/// (no slack) background lanes that differ, are scored in the vector registers; the others
+/// (unobserved cells, objects' mismatches, the slack's neighbourhoods) by Scoring::sample.
+/// Checks the cost after each 8; false when it passed max_cost.
+__attribute__((target("avx2"))) bool scoreEightsAvx2(Scoring& r, const int* px, const int* py,
+                                                     int ox, int oy, std::size_t n8) {
+  const HeightMap& tgt = r.tgt;
+  const __m256i vox = _mm256_set1_epi32(ox), voy = _mm256_set1_epi32(oy);
+  const __m256i minus1 = _mm256_set1_epi32(-1), zero = _mm256_setzero_si256();
+  const __m256i vw = _mm256_set1_epi32(tgt.width), vh = _mm256_set1_epi32(tgt.height);
+  const __m256 unobserved = _mm256_set1_ps(kUnobserved);
+  const __m256d delta = _mm256_set1_pd(r.delta_h), cap = _mm256_set1_pd(r.cap);
+  const __m256d sign = _mm256_set1_pd(-0.0);
+  __m256d sum0 = _mm256_setzero_pd(), sum1 = _mm256_setzero_pd();
+  const float* heights = tgt.heights.data();
+  for (std::size_t i = 0; i < n8; i += 8) {
+    const __m256i x =
+        _mm256_add_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(px + i)), vox);
+    const __m256i y =
+        _mm256_add_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(py + i)), voy);
+    const __m256i inside = _mm256_and_si256(
+        _mm256_and_si256(_mm256_cmpgt_epi32(x, minus1), _mm256_cmpgt_epi32(vw, x)),
+        _mm256_and_si256(_mm256_cmpgt_epi32(y, minus1), _mm256_cmpgt_epi32(vh, y)));
+    const __m256i lin = _mm256_and_si256(inside, _mm256_add_epi32(_mm256_mullo_epi32(y, vw), x));
+    const __m256 ht =
+        _mm256_mask_i32gather_ps(unobserved, heights, lin, _mm256_castsi256_ps(inside), 4);
+    const __m256 observed = _mm256_cmp_ps(ht, unobserved, _CMP_NEQ_UQ);
+    const __m256 h = _mm256_loadu_ps(r.s.h.data() + i);
+    const __m256d d0 =
+        _mm256_andnot_pd(sign, _mm256_sub_pd(_mm256_cvtps_pd(_mm256_castps256_ps128(ht)),
+                                             _mm256_cvtps_pd(_mm256_castps256_ps128(h))));
+    const __m256d d1 =
+        _mm256_andnot_pd(sign, _mm256_sub_pd(_mm256_cvtps_pd(_mm256_extractf128_ps(ht, 1)),
+                                             _mm256_cvtps_pd(_mm256_extractf128_ps(h, 1))));
+    const int differs = _mm256_movemask_pd(_mm256_cmp_pd(d0, delta, _CMP_GT_OQ)) |
+                        _mm256_movemask_pd(_mm256_cmp_pd(d1, delta, _CMP_GT_OQ)) << 4;
+    const int obs = _mm256_movemask_ps(observed);
+    const int background = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+        _mm256_loadu_si256(reinterpret_cast<const __m256i*>(r.s.group.data() + i)), zero)));
+    const int flagged = _mm256_movemask_ps(_mm256_castsi256_ps(
+        _mm256_loadu_si256(reinterpret_cast<const __m256i*>(r.s.mismatched.data() + i))));
+    // Lanes scored here, and those left to Scoring::sample.
+    const int mism = obs & differs & (r.slack == 0 ? background : 0);
+    const int here = (obs & ~differs) | mism;
+    const int rest = (obs & ~here) | (~obs & flagged & 0xff);
+    r.sc.compared += __builtin_popcount(static_cast<unsigned>(here));
+    r.sc.mismatches += __builtin_popcount(static_cast<unsigned>(mism));
+    r.sc.cost += __builtin_popcount(static_cast<unsigned>(mism));
+    const __m256i lanes = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    const __m256i here_m =
+        _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(here), lanes), lanes);
+    sum0 = _mm256_add_pd(
+        sum0,
+        _mm256_and_pd(_mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_castsi256_si128(here_m))),
+                      _mm256_min_pd(cap, d0)));
+    sum1 = _mm256_add_pd(
+        sum1, _mm256_and_pd(
+                  _mm256_castsi256_pd(_mm256_cvtepi32_epi64(_mm256_extracti128_si256(here_m, 1))),
+                  _mm256_min_pd(cap, d1)));
+    for (int m = rest; m != 0; m &= m - 1) {
+      const int j = __builtin_ctz(static_cast<unsigned>(m));
+      if (!r.sample(i + static_cast<std::size_t>(j), px[i + j] + ox, py[i + j] + oy)) return false;
+    }
+    if (r.sc.cost > r.max_cost) return false;
+  }
+  alignas(32) double parts[8];
+  _mm256_store_pd(parts, sum0);
+  _mm256_store_pd(parts + 4, sum1);
+  for (const double v : parts) r.sum += v;
+  return true;
+}
+#endif
+
+/// Scores the samples placed by `placement` and then moved by (ox, oy) whole cells.
+/// With `slack` > 0 a sample agrees when any target cell within `slack` cells (Chebyshev) agrees
+/// (the coarse search: its steps are 2 cells, so the right answer is at most 1 cell away).
+/// Stops early, returning a partial score, once the capped cost passes `max_cost` (it only
+/// grows, so such a candidate cannot beat one with that cost). With `simd` (and an AVX2 CPU)
+/// 8 samples at a time: the same counts, the mean |diff| summed in another order.
+Score scorePlaced(const SampleArrays& samples, const Groups& groups, const HeightMap& tgt,
+                  const Placement& placement, int ox, int oy, double delta_h, bool simd,
+                  int slack = 0, int max_cost = std::numeric_limits<int>::max()) {
+  // Maps hold thousands of small objects: only the counts the last candidate raised are reset.
+  for (const int g : groups.touched) groups.count[static_cast<std::size_t>(g)] = 0;
+  groups.touched.clear();
+  Scoring r{samples, groups, tgt, delta_h, 4.0 * delta_h, slack, max_cost, Score{}};
+  const int* px = placement.x.data();
+  const int* py = placement.y.data();
+  const std::size_t n = samples.h.size();
+  std::size_t i = 0;
+#if defined(__x86_64__) && defined(__GNUC__)
+  if (simd && detail::cpuHasAvx2()) {
+    i = n - n % 8;
+    if (!scoreEightsAvx2(r, px, py, ox, oy, i)) return r.sc;
+  }
+#endif
+  static_cast<void>(simd);
+  for (; i < n; ++i)
+    if (!r.sample(i, px[i] + ox, py[i] + oy)) return r.sc;
+  r.sc.mean_abs = r.sc.compared > 0 ? r.sum / r.sc.compared : 0.0;
+  return r.sc;
 }
 
 /// Puts first the samples whose score can depend on the candidate: those that differ from some
@@ -385,9 +507,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   out.pivot = pivot;
   const Groups groups = groupsOf(samples, n_groups);
 
-  const Score initial =
-      scorePlaced(samples, groups, tgt, place(samples, tgt, pivot, 0.0, Eigen::Vector2d::Zero()), 0,
-                  0, cfg.delta_h);
+  const Score initial = scorePlaced(arraysOf(samples), groups, tgt,
+                                    place(samples, tgt, pivot, 0.0, Eigen::Vector2d::Zero()), 0, 0,
+                                    cfg.delta_h, cfg.simd);
   out.compared_before = out.compared_after = initial.compared;
   out.mismatches_before = out.mismatches_after = initial.mismatches;
   out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
@@ -407,10 +529,12 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
     return std::abs(c - r) < 1e-6 && std::abs(r) < 1e6 ? static_cast<int>(r)
                                                        : std::numeric_limits<int>::min();
   };
-  // Placements of a sample set per yaw (shift 0): a candidate whose shift is whole cells only
-  // adds an offset to them, so each sample is rotated once per yaw, not once per candidate.
+  // A sample set as scored (in its final order), with its placements per yaw (shift 0): a
+  // candidate whose shift is whole cells only adds an offset to them, so each sample is rotated
+  // once per yaw, not once per candidate.
   struct YawPlacements {
     const std::vector<Sample>* samples = nullptr;
+    SampleArrays arrays;
     std::vector<std::pair<double, Placement>> by_yaw;
     const Placement& at(const HeightMap& t, const Eigen::Vector2d& pv, double yaw_deg) {
       for (const auto& [y, p] : by_yaw)
@@ -443,12 +567,13 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
       const int ox = wholeCells(k.du), oy = wholeCells(k.dv);
       const bool whole =
           ox != std::numeric_limits<int>::min() && oy != std::numeric_limits<int>::min();
-      const Score sc = whole ? scorePlaced(smp, grp, tgt, placed.at(tgt, pivot, k.yaw_deg), ox, oy,
-                                           cfg.delta_h, slack, max_cost)
-                             : scorePlaced(smp, grp, tgt,
-                                           place(smp, tgt, pivot, k.yaw_deg * kPi / 180.0,
-                                                 Eigen::Vector2d(k.du, k.dv)),
-                                           0, 0, cfg.delta_h, slack, max_cost);
+      const Score sc =
+          whole ? scorePlaced(placed.arrays, grp, tgt, placed.at(tgt, pivot, k.yaw_deg), ox, oy,
+                              cfg.delta_h, cfg.simd, slack, max_cost)
+                : scorePlaced(
+                      placed.arrays, grp, tgt,
+                      place(smp, tgt, pivot, k.yaw_deg * kPi / 180.0, Eigen::Vector2d(k.du, k.dv)),
+                      0, 0, cfg.delta_h, cfg.simd, slack, max_cost);
       if (!any || better(sc, *best_s)) {
         *best_s = sc;
         *best_c = k;
@@ -468,7 +593,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   sensitiveFirst(coarse_samples, tgt, cfg.delta_h, kSensitiveRadius);
   sensitiveFirst(samples, tgt, cfg.delta_h, kSensitiveRadius);
   const double cstep = 2.0 * step, cystep = std::max(1.0, ystep);
-  YawPlacements coarse_placed{&coarse_samples, {}}, placed{&samples, {}};
+  YawPlacements coarse_placed{&coarse_samples, arraysOf(coarse_samples), {}};
+  YawPlacements placed{&samples, arraysOf(samples), {}};
   Cand coarse;
   Score coarse_score;
   gridSearch(coarse_samples, coarse_placed, groupsOf(coarse_samples, n_groups), Cand{},

@@ -382,6 +382,49 @@ TEST(HeightCompare, RefinementScoresWholeCellShiftsLikeAnyOtherShift) {
   EXPECT_TRUE(T1.isApprox(T2, 1e-4));
 }
 
+TEST(HeightCompare, RefinementScoresTheSameWithAndWithoutSimd) {
+  // The AVX2 scoring (8 samples at a time, its slack row by row) against the scalar code, on
+  // maps with what takes each lane's other paths: noise (many differing background samples),
+  // objects (capped groups), holes (unobserved cells, flagged mismatches moved onto them), a
+  // moved object and drift. The same transform and counts; the mean |diff| sums in another
+  // order.
+  Config cfg;
+  std::vector<Box> scene{{40, 42, 10, 10, 0.08f}, {44, 8, 8, 14, 0.06f}, {6, 44, 12, 6, 0.1f}};
+  HeightMap src = render(scene);
+  scene.push_back({20, 20, 8, 8, 0.07f});  // added in the target
+  scene[2].x0 += 3;                        // moved by 3 cells
+  HeightMap tgt = render(scene, yawShift(1.5 * kDeg, 2 * kCell, -kCell));
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0.0f, 0.006f);
+  for (HeightMap* hm : {&src, &tgt})
+    for (std::size_t c = 0; c < hm->heights.size(); ++c) {
+      if (c % 23 == 0) {
+        hm->heights[c] = kUnobserved;
+        continue;
+      }
+      hm->heights[c] = std::max(0.0f, hm->heights[c] + noise(rng));
+    }
+  InPlaneRefinement r[2];
+  Pose T[2] = {Pose::Identity(), Pose::Identity()};
+  for (int simd = 0; simd < 2; ++simd) {
+    cfg.simd = simd == 1;
+    r[simd] = refineInPlane(src, tgt, T[simd], cfg);
+  }
+  EXPECT_TRUE(r[0].applied);               // the drift is found through the noise
+  EXPECT_GT(r[0].mismatches_before, 150);  // the noise: many differing samples
+  EXPECT_EQ(r[0].applied, r[1].applied);
+  EXPECT_EQ(r[0].mismatches_before, r[1].mismatches_before);
+  EXPECT_EQ(r[0].mismatches_after, r[1].mismatches_after);
+  EXPECT_EQ(r[0].compared_before, r[1].compared_before);
+  EXPECT_EQ(r[0].compared_after, r[1].compared_after);
+  EXPECT_EQ(r[0].du, r[1].du);
+  EXPECT_EQ(r[0].dv, r[1].dv);
+  EXPECT_EQ(r[0].dyaw, r[1].dyaw);
+  EXPECT_NEAR(r[0].mean_abs_before, r[1].mean_abs_before, 1e-12);
+  EXPECT_NEAR(r[0].mean_abs_after, r[1].mean_abs_after, 1e-12);
+  EXPECT_TRUE(T[0].isApprox(T[1], 0.0));
+}
+
 TEST(HeightCompare, ShiftAndYawTogetherButRealRemovalStays) {
   const Config cfg;
   const std::vector<Box> statics{
