@@ -699,6 +699,65 @@ TEST(ObjectMap, SensorSpeckleOnAFarSurfaceIsNoObject) {
   EXPECT_GT(before.numObjects(), 200);
 }
 
+/// Reference labelling for connectedComponents: a breadth-first flood fill from each unlabelled
+/// on-cell in raster order, then the area filter and renumbering.
+Components floodFillComponents(const Mask2D& m, int min_area, int connectivity) {
+  std::vector<int> labels(m.cells.size(), 0);
+  std::vector<int> areas;
+  for (int y0 = 0; y0 < m.height; ++y0)
+    for (int x0 = 0; x0 < m.width; ++x0) {
+      if (!m.at(x0, y0) || labels[m.index(x0, y0)] != 0) continue;
+      const int label = static_cast<int>(areas.size()) + 1;
+      std::vector<std::pair<int, int>> queue{{x0, y0}};
+      labels[m.index(x0, y0)] = label;
+      for (std::size_t k = 0; k < queue.size(); ++k)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            if (connectivity == 4 && dx != 0 && dy != 0) continue;
+            const int x = queue[k].first + dx, y = queue[k].second + dy;
+            if (!m.inBounds(x, y) || !m.at(x, y) || labels[m.index(x, y)] != 0) continue;
+            labels[m.index(x, y)] = label;
+            queue.emplace_back(x, y);
+          }
+      areas.push_back(static_cast<int>(queue.size()));
+    }
+  Components cc;
+  std::vector<int> remap(areas.size() + 1, 0);
+  for (std::size_t l = 0; l < areas.size(); ++l)
+    if (areas[l] >= min_area) {
+      cc.areas.push_back(areas[l]);
+      remap[l + 1] = cc.count();
+    }
+  for (int& l : labels) l = remap[static_cast<std::size_t>(l)];
+  cc.labels = std::move(labels);
+  return cc;
+}
+
+TEST(ObjectMapMask, ComponentsMatchAFloodFillOnRandomMasks) {
+  // Runs joined by a union-find label like a flood fill: the same components, numbered in
+  // raster order of their first cell, on masks where components merge rows below their first
+  // cells (U and W shapes at every density), for both connectivities and area filters.
+  std::mt19937 rng(11);
+  int merged = 0;
+  for (const auto& [w, h] : {std::pair<int, int>{1, 1}, {1, 40}, {40, 1}, {37, 29}, {64, 64}})
+    for (const double density : {0.2, 0.45, 0.6, 0.9}) {
+      Mask2D m = Mask2D::zeros(syntheticMap(w, h, 0.0f).geometry());
+      std::bernoulli_distribution on(density);
+      for (auto& c : m.cells) c = on(rng) ? 1 : 0;
+      for (const int connectivity : {8, 4})
+        for (const int min_area : {1, 3}) {
+          SCOPED_TRACE(testing::Message() << w << "x" << h << " density " << density << " conn "
+                                          << connectivity << " min " << min_area);
+          const Components got = connectedComponents(m, min_area, connectivity);
+          const Components want = floodFillComponents(m, min_area, connectivity);
+          EXPECT_EQ(got.areas, want.areas);
+          EXPECT_EQ(got.labels, want.labels);
+          merged += got.count() > 1 ? 1 : 0;
+        }
+    }
+  EXPECT_GT(merged, 10);
+}
+
 TEST(ObjectMapMask, ComponentsAreaFilterAndDilation) {
   Mask2D m = Mask2D::zeros(syntheticMap(10, 8, 0.0f).geometry());
   ASSERT_EQ(m.cells.size(), 80u);
