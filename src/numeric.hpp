@@ -19,8 +19,8 @@ inline int floorToIntOr(double x, int fallback) {
 }
 
 /// True when this CPU runs AVX2 code (checked once, at the first call). The stages' AVX2 builds
-/// (fusion's row kernel, the kept points' band pre-test, the height map's block classification,
-/// the in-plane refinement's scoring) run when this and cfg.simd are true.
+/// (fusion's row kernel, the kept points' band pre-test, the height map's block classification
+/// and layer walk, the in-plane refinement's scoring) run when this and cfg.simd are true.
 inline bool cpuHasAvx2() {
 #if defined(__x86_64__) && defined(__GNUC__)
   static const bool has = __builtin_cpu_supports("avx2");

@@ -74,9 +74,9 @@ struct Config {
   int threads = 0;            ///< fusion threads; 0 = hardware concurrency
   /// Fuse rows of voxels with the AVX2 kernel when the CPU has AVX2 (checked at run time); also
   /// the AVX2 builds of the kept points' band pre-test, of the height map's block
-  /// classification and of the in-plane refinement's scoring. The results are bit-identical to
-  /// the scalar code, which runs when this is off or on CPUs without AVX2 (the refinement's
-  /// mean |diff| sums in another order: the last bits may differ).
+  /// classification and layer walk and of the in-plane refinement's scoring. The results are
+  /// bit-identical to the scalar code, which runs when this is off or on CPUs without AVX2 (the
+  /// refinement's mean |diff| sums in another order: the last bits may differ).
   bool simd = true;
   /// Projective fusion skips "inside" values behind a surface near a silhouette, where the
   /// object may already have ended (integrateDepth). Right when other views fill in what is

@@ -8,6 +8,10 @@
 
 #include <omp.h>
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -46,15 +50,17 @@ std::vector<BlockColumn> bucketBlockColumns(const TsdfVolume& vol, const Eigen::
 
 constexpr int kColumnsPerBlock = kTsdfBlockSide * kTsdfBlockSide;
 
-/// The walk state of one voxel column (see computeHeightMap).
-struct ColumnState {
-  float above_sdf = 0.0f;       // the voxel directly above the current one ...
-  bool above_observed = false;  // ... and whether it is observed
-  bool done = false;            // a surface was found: `value` is final
-  float value = kUnobserved;
-  float lowest_free = std::numeric_limits<float>::infinity();  // centre h of the lowest free
+/// The walk state of the 64 voxel columns of a block column (see computeHeightMap), one array
+/// per field so that a layer is walked 8 columns at a time (AVX2). Flags are 0 or -1 (all bits).
+struct BlockColumnState {
+  static constexpr float kInfinity = std::numeric_limits<float>::infinity();
+  alignas(32) float above_sdf[kColumnsPerBlock] = {};              // the voxel directly above ...
+  alignas(32) std::int32_t above_observed[kColumnsPerBlock] = {};  // ... and whether observed
+  alignas(32) std::int32_t done[kColumnsPerBlock] = {};  // a surface was found: `value` final
+  alignas(32) float value[kColumnsPerBlock] = {};
+  alignas(32) float lowest_free[kColumnsPerBlock] = {};  // centre h of the lowest free voxel
+  BlockColumnState() { std::fill(std::begin(lowest_free), std::end(lowest_free), kInfinity); }
 };
-using BlockColumnState = std::array<ColumnState, kColumnsPerBlock>;
 
 /// What a whole block holds, for the fast paths of the walk.
 enum class BlockKind { kMixed, kAllFree, kAllUnobserved };
@@ -90,34 +96,99 @@ BlockKind classifyBlock(const TsdfBlock& b, float w_eff, bool avx2) {
 
 /// Advances every column without a surface by one z-layer (64 contiguous voxels at height
 /// index k; `adjacent`: the previous layer walked was k + 1). Returns the columns left.
-int walkLayer(const TsdfVoxel* layer, int k, bool adjacent, float vs, float w_eff,
-              BlockColumnState& cols) {
+/// Branch-free over the columns: a column that is done keeps its state (the reference code of
+/// walkLayerAvx2, which gives bit-identical results).
+int walkLayerScalar(const TsdfVoxel* layer, int k, bool adjacent, float vs, float w_eff,
+                    BlockColumnState& cols) {
   const float centre = (static_cast<float>(k) + 0.5f) * vs;
+  const float top_face = static_cast<float>(k + 1) * vs;
+  const std::int32_t adj = adjacent ? -1 : 0;
   int active = 0;
   for (int c = 0; c < kColumnsPerBlock; ++c) {
-    ColumnState& st = cols[static_cast<std::size_t>(c)];
-    if (st.done) continue;
-    const TsdfVoxel& v = layer[c];
-    const bool observed = v.weight >= w_eff;
-    if (observed && v.sdf <= 0.0f) {
-      if (!adjacent || !st.above_observed) {  // below unobserved space: its top face
-        st.value = std::max(0.0f, static_cast<float>(k + 1) * vs);
-        st.done = true;
-        continue;
-      }
-      if (st.above_sdf > 0.0f) {  // free above, inside here: the crossing between the centres
-        st.value = std::max(0.0f, centre + vs * (v.sdf / (v.sdf - st.above_sdf)));
-        st.done = true;
-        continue;
-      }
-    } else if (observed) {
-      st.lowest_free = centre;  // walking down: always the lowest so far
-    }
-    st.above_observed = observed;
-    st.above_sdf = v.sdf;
-    ++active;
+    const float sdf = layer[c].sdf;
+    const std::int32_t observed = layer[c].weight >= w_eff ? -1 : 0;
+    const std::int32_t le0 = sdf <= 0.0f ? -1 : 0;
+    const float above = cols.above_sdf[c];
+    const std::int32_t open_inside = ~cols.done[c] & observed & le0;
+    // Inside below unobserved space: its top face; inside below free space: the crossing
+    // between the centres; inside below inside: the walk goes on.
+    const std::int32_t below_observed = adj & cols.above_observed[c];
+    const std::int32_t top = open_inside & ~below_observed;
+    const std::int32_t cross = open_inside & below_observed & (above > 0.0f ? -1 : 0);
+    const float found = top != 0 ? top_face : centre + vs * (sdf / (sdf - above));
+    const std::int32_t hit = top | cross;
+    cols.value[c] = hit != 0 ? (0.0f < found ? found : 0.0f) : cols.value[c];
+    // Walking down, an observed voxel that is not inside is always the lowest free so far.
+    const std::int32_t free_here = ~cols.done[c] & observed & ~le0;
+    cols.lowest_free[c] = free_here != 0 ? centre : cols.lowest_free[c];
+    const std::int32_t still = ~cols.done[c] & ~hit;
+    cols.above_observed[c] = still != 0 ? observed : cols.above_observed[c];
+    cols.above_sdf[c] = still != 0 ? sdf : above;
+    cols.done[c] = ~still;
+    active += still & 1;
   }
   return active;
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+/// walkLayerScalar 8 columns at a time (no FMA: the same operations in the same order). A
+/// layer's 8 (sdf, weight) pairs load as two vectors, de-interleaved by a shuffle and a permute.
+__attribute__((target("avx2"))) int walkLayerAvx2(const TsdfVoxel* layer, int k, bool adjacent,
+                                                  float vs, float w_eff, BlockColumnState& cols) {
+  const __m256 centre = _mm256_set1_ps((static_cast<float>(k) + 0.5f) * vs);
+  const __m256 top_face = _mm256_set1_ps(static_cast<float>(k + 1) * vs);
+  const __m256 vvs = _mm256_set1_ps(vs), weff = _mm256_set1_ps(w_eff);
+  const __m256 zero = _mm256_setzero_ps();
+  const __m256 ones = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+  const __m256 adj = adjacent ? ones : zero;
+  const __m256i order = _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7);
+  int active = 0;
+  for (int c = 0; c < kColumnsPerBlock; c += 8) {
+    const float* raw = &layer[c].sdf;
+    const __m256 v0 = _mm256_loadu_ps(raw), v1 = _mm256_loadu_ps(raw + 8);
+    const __m256 sdf = _mm256_permutevar8x32_ps(_mm256_shuffle_ps(v0, v1, 0x88), order);
+    const __m256 w = _mm256_permutevar8x32_ps(_mm256_shuffle_ps(v0, v1, 0xdd), order);
+    const __m256 observed = _mm256_cmp_ps(w, weff, _CMP_GE_OQ);
+    const __m256 le0 = _mm256_cmp_ps(sdf, zero, _CMP_LE_OQ);
+    const __m256 above = _mm256_load_ps(cols.above_sdf + c);
+    const __m256 above_observed = _mm256_load_ps(
+        reinterpret_cast<const float*>(static_cast<const void*>(cols.above_observed + c)));
+    const __m256 done =
+        _mm256_load_ps(reinterpret_cast<const float*>(static_cast<const void*>(cols.done + c)));
+    const __m256 open_inside = _mm256_andnot_ps(done, _mm256_and_ps(observed, le0));
+    const __m256 below_observed = _mm256_and_ps(adj, above_observed);
+    const __m256 top = _mm256_andnot_ps(below_observed, open_inside);
+    const __m256 cross = _mm256_and_ps(_mm256_and_ps(open_inside, below_observed),
+                                       _mm256_cmp_ps(above, zero, _CMP_GT_OQ));
+    const __m256 crossing =
+        _mm256_add_ps(centre, _mm256_mul_ps(vvs, _mm256_div_ps(sdf, _mm256_sub_ps(sdf, above))));
+    const __m256 found = _mm256_blendv_ps(crossing, top_face, top);
+    const __m256 clamped = _mm256_and_ps(found, _mm256_cmp_ps(zero, found, _CMP_LT_OQ));
+    const __m256 hit = _mm256_or_ps(top, cross);
+    _mm256_store_ps(cols.value + c, _mm256_blendv_ps(_mm256_load_ps(cols.value + c), clamped, hit));
+    const __m256 free_here = _mm256_andnot_ps(done, _mm256_andnot_ps(le0, observed));
+    _mm256_store_ps(cols.lowest_free + c,
+                    _mm256_blendv_ps(_mm256_load_ps(cols.lowest_free + c), centre, free_here));
+    const __m256 still = _mm256_andnot_ps(_mm256_or_ps(done, hit), ones);
+    _mm256_store_ps(reinterpret_cast<float*>(static_cast<void*>(cols.above_observed + c)),
+                    _mm256_blendv_ps(above_observed, observed, still));
+    _mm256_store_ps(cols.above_sdf + c, _mm256_blendv_ps(above, sdf, still));
+    _mm256_store_ps(reinterpret_cast<float*>(static_cast<void*>(cols.done + c)),
+                    _mm256_xor_ps(still, ones));
+    active += __builtin_popcount(static_cast<unsigned>(_mm256_movemask_ps(still)));
+  }
+  return active;
+}
+#endif
+
+/// walkLayerScalar with the AVX2 build when `avx2` (the caller checked the CPU).
+int walkLayer(const TsdfVoxel* layer, int k, bool adjacent, float vs, float w_eff, bool avx2,
+              BlockColumnState& cols) {
+#if defined(__x86_64__) && defined(__GNUC__)
+  if (avx2) return walkLayerAvx2(layer, k, adjacent, vs, w_eff, cols);
+#endif
+  static_cast<void>(avx2);
+  return walkLayerScalar(layer, k, adjacent, vs, w_eff, cols);
 }
 
 /// Advances the columns over a whole block at once when it is all free (no surface possible;
@@ -128,10 +199,10 @@ bool skipUniformBlock(const TsdfBlock& b, float vs, float w_eff, bool avx2,
   if (kind == BlockKind::kMixed) return false;
   const float bottom_centre = (static_cast<float>(b.index.z() * kTsdfBlockSide) + 0.5f) * vs;
   for (int c = 0; c < kColumnsPerBlock; ++c) {
-    ColumnState& st = cols[static_cast<std::size_t>(c)];
-    st.above_observed = kind == BlockKind::kAllFree;
-    st.above_sdf = b.voxels[static_cast<std::size_t>(c)].sdf;  // bottom layer
-    if (kind == BlockKind::kAllFree) st.lowest_free = bottom_centre;
+    if (cols.done[c]) continue;
+    cols.above_observed[c] = kind == BlockKind::kAllFree ? -1 : 0;
+    cols.above_sdf[c] = b.voxels[static_cast<std::size_t>(c)].sdf;  // bottom layer
+    if (kind == BlockKind::kAllFree) cols.lowest_free[c] = bottom_centre;
   }
   return true;
 }
@@ -144,7 +215,7 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
                         float* out) {
   // weight > 0 && weight >= w_min, as one comparison.
   const float w_eff = std::max(w_min, std::numeric_limits<float>::denorm_min());
-  BlockColumnState cols{};
+  BlockColumnState cols;
   int above_k = std::numeric_limits<int>::max();  // k of the layer walked last
   int active = kColumnsPerBlock;
   for (std::size_t i = 0; i < blocks.size() && active > 0; ++i) {
@@ -157,14 +228,12 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
     for (int lz = kTsdfBlockSide - 1; lz >= 0 && active > 0; --lz) {
       const int k = kbase + lz;
       const TsdfVoxel* layer = &b.voxels[static_cast<std::size_t>(kColumnsPerBlock * lz)];
-      active = walkLayer(layer, k, above_k == k + 1, vs, w_eff, cols);
+      active = walkLayer(layer, k, above_k == k + 1, vs, w_eff, avx2, cols);
       above_k = k;
     }
   }
-  for (int c = 0; c < kColumnsPerBlock; ++c) {
-    const ColumnState& st = cols[static_cast<std::size_t>(c)];
-    out[c] = st.done ? st.value : (st.lowest_free <= h_obj ? 0.0f : kUnobserved);
-  }
+  for (int c = 0; c < kColumnsPerBlock; ++c)
+    out[c] = cols.done[c] ? cols.value[c] : (cols.lowest_free[c] <= h_obj ? 0.0f : kUnobserved);
 }
 
 }  // namespace

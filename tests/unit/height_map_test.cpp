@@ -426,7 +426,7 @@ TEST(HeightMap, MatchesAPlainPerColumnWalkOnRandomVolumes) {
   expectMatchesReference(vol, cfg);
   cfg.threads = 1;
   expectMatchesReference(vol, cfg);
-  cfg.simd = false;  // the default build of the block classification instead of AVX2
+  cfg.simd = false;  // the default builds of the block classification and layer walk
   expectMatchesReference(vol, cfg);
   // The analytic scene, with its fully free blocks.
   Config scfg = testConfig();
