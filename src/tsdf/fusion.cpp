@@ -1252,13 +1252,14 @@ __attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, f
 }
 #endif
 
-/// Pass 2 for one block: projects its voxel centres (memory order) and fuses them.
-BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Camera& cam, const FrustumCull& cull,
-                                  const DepthUpdateParams& prm) {
+/// Pass 2 for one block (integer index `index`, from the volume's index array: reading
+/// blk.index would miss the cache on the line after the voxels): projects its voxel centres
+/// (memory order) and fuses them.
+BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Eigen::Vector3i& index, const Camera& cam,
+                                  const FrustumCull& cull, const DepthUpdateParams& prm) {
   BlockOutcome out;
   const double vs = prm.voxel;
-  const Eigen::Vector3d c0_local =
-      (blk.index.cast<double>() * kTsdfBlockSide).array() * vs + 0.5 * vs;
+  const Eigen::Vector3d c0_local = (index.cast<double>() * kTsdfBlockSide).array() * vs + 0.5 * vs;
   const Eigen::Vector3f c0 = (cam.R_cl_d * c0_local + cam.t_cl_d).cast<float>();
   const Eigen::Vector3f ax = cam.R_cl.col(0) * prm.voxel;
   const Eigen::Vector3f ay = cam.R_cl.col(1) * prm.voxel;
@@ -1580,7 +1581,8 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
 #pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4)
   for (int i = 0; i < n; ++i) {
     const std::uint32_t j = order[i];
-    outcomes[j] = updateBlockFromDepth(vol.block(slots[j]), cam, cull, prm);
+    outcomes[j] =
+        updateBlockFromDepth(vol.block(slots[j]), vol.blockIndex(slots[j]), cam, cull, prm);
   }
   finishIntegration(vol, slots, outcomes, res);
   return res;
