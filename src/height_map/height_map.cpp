@@ -27,24 +27,26 @@ int resolveThreads(int requested) {
   return requested > 0 ? requested : std::max(1, omp_get_max_threads());
 }
 
-/// The allocated blocks of one (bx, by) block column, highest first.
-using BlockColumn = std::vector<const TsdfBlock*>;
+/// The allocated blocks of one (bx, by) block column, highest first, with their block z.
+using BlockColumn = std::vector<std::pair<int, const TsdfBlock*>>;
 
 /// Buckets the volume's blocks by (bx, by) over the block bounds [lo, hi]; each bucket sorted
-/// by block z, descending.
+/// by block z, descending. Reads the volume's index array, not the blocks (a block's index
+/// lies on the cache line after its voxels).
 std::vector<BlockColumn> bucketBlockColumns(const TsdfVolume& vol, const Eigen::Vector3i& lo,
                                             const Eigen::Vector3i& hi) {
   const int nbx = hi.x() - lo.x() + 1;
   const int nby = hi.y() - lo.y() + 1;
   std::vector<BlockColumn> columns(static_cast<std::size_t>(nbx) * static_cast<std::size_t>(nby));
-  vol.forEachBlock([&](const TsdfBlock& b) {
-    const std::size_t c = static_cast<std::size_t>(b.index.y() - lo.y()) * nbx +
-                          static_cast<std::size_t>(b.index.x() - lo.x());
-    columns[c].push_back(&b);
-  });
+  for (std::size_t slot = 0; slot < vol.numBlocks(); ++slot) {
+    const Eigen::Vector3i& b = vol.blockIndex(slot);
+    const std::size_t c =
+        static_cast<std::size_t>(b.y() - lo.y()) * nbx + static_cast<std::size_t>(b.x() - lo.x());
+    columns[c].emplace_back(b.z(), &vol.block(slot));
+  }
   for (BlockColumn& col : columns)
     std::sort(col.begin(), col.end(),
-              [](const TsdfBlock* a, const TsdfBlock* b) { return a->index.z() > b->index.z(); });
+              [](const auto& a, const auto& b) { return a.first > b.first; });
   return columns;
 }
 
@@ -191,13 +193,14 @@ int walkLayer(const TsdfVoxel* layer, int k, bool adjacent, float vs, float w_ef
   return walkLayerScalar(layer, k, adjacent, vs, w_eff, cols);
 }
 
-/// Advances the columns over a whole block at once when it is all free (no surface possible;
-/// the state becomes that of its bottom layer) or all unobserved. False for a mixed block.
-bool skipUniformBlock(const TsdfBlock& b, float vs, float w_eff, bool avx2,
+/// Advances the columns over a whole block (block z `bz`) at once when it is all free (no surface
+/// possible; the state becomes that of its bottom layer) or all unobserved. False for a mixed
+/// block.
+bool skipUniformBlock(const TsdfBlock& b, int bz, float vs, float w_eff, bool avx2,
                       BlockColumnState& cols) {
   const BlockKind kind = classifyBlock(b, w_eff, avx2);
   if (kind == BlockKind::kMixed) return false;
-  const float bottom_centre = (static_cast<float>(b.index.z() * kTsdfBlockSide) + 0.5f) * vs;
+  const float bottom_centre = (static_cast<float>(bz * kTsdfBlockSide) + 0.5f) * vs;
   for (int c = 0; c < kColumnsPerBlock; ++c) {
     if (cols.done[c]) continue;
     cols.above_observed[c] = kind == BlockKind::kAllFree ? -1 : 0;
@@ -219,9 +222,9 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
   int above_k = std::numeric_limits<int>::max();  // k of the layer walked last
   int active = kColumnsPerBlock;
   for (std::size_t i = 0; i < blocks.size() && active > 0; ++i) {
-    const TsdfBlock& b = *blocks[i];
-    const int kbase = b.index.z() * kTsdfBlockSide;
-    if (skipUniformBlock(b, vs, w_eff, avx2, cols)) {
+    const TsdfBlock& b = *blocks[i].second;
+    const int kbase = blocks[i].first * kTsdfBlockSide;
+    if (skipUniformBlock(b, blocks[i].first, vs, w_eff, avx2, cols)) {
       above_k = kbase;
       continue;
     }
