@@ -224,6 +224,10 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
   for (std::size_t i = 0; i < blocks.size() && active > 0; ++i) {
     const TsdfBlock& b = *blocks[i].second;
     const int kbase = blocks[i].first * kTsdfBlockSide;
+    if (i + 1 < blocks.size()) {  // the next block's voxels, while this one is walked
+      const char* next = reinterpret_cast<const char*>(blocks[i + 1].second->voxels.data());
+      for (std::size_t o = 0; o < sizeof(TsdfBlock::voxels); o += 64) __builtin_prefetch(next + o);
+    }
     if (skipUniformBlock(b, blocks[i].first, vs, w_eff, avx2, cols)) {
       above_k = kbase;
       continue;
