@@ -183,11 +183,22 @@ CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
                             const std::vector<Eigen::Vector3f>& points, const Config& cfg);
 
 namespace detail {
-/// The band points of one PlaneMaps, bucketed once on first use (see bandPoints).
+/// Points per chunk of detail::PointChunks.
+constexpr std::size_t kPointChunk = 4096;
+/// The world boxes of a map's points in chunks of kPointChunk consecutive points, computed once
+/// on first use: a change's points are gathered from the chunks its region's box meets.
+struct PointChunks {
+  const std::vector<Eigen::Vector3f>* source = nullptr;  ///< the map's points()
+  std::once_flag once;
+  std::vector<Eigen::AlignedBox3f> boxes;
+};
+/// The band points of one PlaneMaps, bucketed once on first use (see bandPoints), and the chunk
+/// boxes of the map's points (shared by the PlaneMaps of one map in detectChanges).
 struct LazyCellPoints {
   const std::vector<Eigen::Vector3f>* source = nullptr;  ///< the map's points()
   std::once_flag once;
   CellPoints cells;
+  std::shared_ptr<PointChunks> chunks;
 };
 }  // namespace detail
 
@@ -196,16 +207,17 @@ struct PlaneMaps {
   HeightMap heights;
   ObjectMap objects;
   std::uint64_t revision = 0;  ///< TsdfVolume::revision() they were computed at
-  /// The map's points by cell, bucketed on first use by bandPoints() when computePlaneMaps was
-  /// given the points (most planes of a scene pair have no change whose points are needed);
-  /// shared by copies. Null without points.
+  /// With computePlaneMaps given the map's points: the chunk boxes of those points (built on
+  /// first use; comparePlanePair gathers a change's points from the chunks its region meets,
+  /// else it scans them all) and their band points by cell (bucketed on first use by
+  /// bandPoints()); shared by copies. Null without points.
   std::shared_ptr<detail::LazyCellPoints> points;
 };
 /// The height and object maps of `plane`, where cells whose surface lies on another,
 /// non-parallel plane of the same map (`map_planes`: a wall rising through a table's band, a
 /// table crossing a wall's band) are unknown: they are structure, which that plane's own PlaneSDF
-/// compares. With `points` (the map's points(), which must outlive the maps), bandPoints()
-/// buckets them on first use, once; without, comparePlanePair buckets them itself.
+/// compares. With `points` (the map's points(), which must outlive the maps), the maps carry
+/// the points' chunk boxes and bandPoints() buckets them, each on first use, once.
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
                            const Config& cfg, const std::vector<Eigen::Vector3f>* points = nullptr);
 

@@ -152,6 +152,99 @@ double maxHeight(const HeightMap& hm) {
   return static_cast<double>(m);
 }
 
+/// The chunk boxes of `points` held by `chunks` (computed on the first call), or nullptr when
+/// `chunks` is null or made for other points.
+const std::vector<Eigen::AlignedBox3f>* chunkBoxes(
+    const std::shared_ptr<detail::PointChunks>& chunks,
+    const std::vector<Eigen::Vector3f>& points) {
+  if (!chunks || chunks->source != &points) return nullptr;
+  std::call_once(chunks->once, [&] {
+    auto& boxes = chunks->boxes;
+    boxes.clear();
+    for (std::size_t b = 0; b < points.size(); b += detail::kPointChunk) {
+      Eigen::AlignedBox3f box;
+      const std::size_t e = std::min(points.size(), b + detail::kPointChunk);
+      for (std::size_t i = b; i < e; ++i)
+        if (points[i].allFinite()) box.extend(points[i]);
+      boxes.push_back(box);
+    }
+  });
+  return chunks->boxes.size() == (points.size() + detail::kPointChunk - 1) / detail::kPointChunk
+             ? &chunks->boxes
+             : nullptr;
+}
+
+/// The chunk boxes of the points `maps` was computed with, when those are `points`.
+const std::vector<Eigen::AlignedBox3f>* chunkBoxes(const PlaneMaps& maps,
+                                                   const std::vector<Eigen::Vector3f>& points) {
+  return maps.points ? chunkBoxes(maps.points->chunks, points) : nullptr;
+}
+
+/// Calls f(i, c, z), in input order, for each point i of `points` that bucketBandPoints puts in
+/// cell c (row-major) of `hm` (the plane's band, from half the object threshold to the map's
+/// top plus one cell) when c lies in `box` (cells, inclusive) and want(c); z is the point's
+/// height above the plane. A single-precision pre-test of the band and of the box's extent
+/// (8 points at a time; its margin never drops a point the exact test keeps) leaves few points
+/// to the exact test: a candidate's points cost one pass over the map's points, not the
+/// bucketing of the whole band.
+template <class Want, class F>
+void forBandPointsIn(const Plane& plane, const HeightMap& hm,
+                     const std::vector<Eigen::Vector3f>& points,
+                     const std::vector<Eigen::AlignedBox3f>* chunks, const Config& cfg,
+                     const Eigen::AlignedBox2i& box, Want&& want, F&& f) {
+  if (hm.empty() || box.isEmpty() || points.empty()) return;
+  const BandFilter in_band(plane, 0.5 * cfg.h_obj, maxHeight(hm) + hm.cell_size);
+  // With chunk boxes: only the chunks that meet the world box of the region's cells (grown by a
+  // cell) and band heights (grown by 1 mm).
+  Eigen::AlignedBox3f region;
+  if (chunks != nullptr) {
+    const double cs = hm.cell_size;
+    for (int k = 0; k < 8; ++k) {
+      const Eigen::Vector3d l((hm.i0 + ((k & 1) ? box.max().x() + 2 : box.min().x() - 1)) * cs,
+                              (hm.j0 + ((k & 2) ? box.max().y() + 2 : box.min().y() - 1)) * cs,
+                              (k & 4) ? in_band.hi + 1e-3 : in_band.lo - 1e-3);
+      region.extend(plane.toWorld(l).cast<float>());
+    }
+    region.min().array() -= 1e-3f;
+    region.max().array() += 1e-3f;
+  }
+  // One band per pre-test: the heights, then u and v over the box grown by a cell.
+  const auto bandAlong = [&](int axis, double lo, double hi) {
+    const Eigen::Vector3d n = plane.frame_axes.col(axis);
+    return std::vector<detail::BandF>{{static_cast<float>(n.x()), static_cast<float>(n.y()),
+                                       static_cast<float>(n.z()),
+                                       static_cast<float>(-n.dot(plane.frame_origin)),
+                                       static_cast<float>(lo), static_cast<float>(hi)}};
+  };
+  const double cs = hm.cell_size;
+  const std::vector<detail::BandF> bands[3] = {
+      bandAlong(2, in_band.lo, in_band.hi),
+      bandAlong(0, (hm.i0 + box.min().x() - 1) * cs, (hm.i0 + box.max().x() + 2) * cs),
+      bandAlong(1, (hm.j0 + box.min().y() - 1) * cs, (hm.j0 + box.max().y() + 2) * cs)};
+  constexpr std::size_t kChunk = 512;
+  alignas(64) std::uint8_t maybe[3][kChunk];
+  static_assert(detail::kPointChunk % kChunk == 0, "pre-test chunks tile the point chunks");
+  for (std::size_t begin = 0; begin < points.size(); begin += kChunk) {
+    if (chunks != nullptr && !(*chunks)[begin / detail::kPointChunk].intersects(region)) {
+      begin += detail::kPointChunk - kChunk - begin % detail::kPointChunk;  // the whole chunk
+      continue;
+    }
+    const std::size_t m = std::min(kChunk, points.size() - begin);
+    for (int b = 0; b < 3; ++b)
+      detail::bandPretest(points[begin].data(), static_cast<int>(m), bands[b], maybe[b], cfg.simd);
+    for (std::size_t k = 0; k < m; ++k) {
+      if ((maybe[0][k] & maybe[1][k] & maybe[2][k]) == 0) continue;
+      const std::size_t i = begin + k;
+      if (!in_band(points[i])) continue;
+      const Eigen::Vector3d l = plane.toLocal(points[i].cast<double>());
+      const Eigen::Vector2i c = hm.cellOf(l.head<2>());
+      if (!hm.inBounds(c.x(), c.y()) || !box.contains(c)) continue;
+      const std::size_t cell = hm.index(c.x(), c.y());
+      if (want(cell)) f(i, cell, l.z());
+    }
+  }
+}
+
 /// Observed voxels of column (i, j) with centre height in [lo, hi].
 void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, float w_min,
                   std::vector<Eigen::Vector3i>& out) {
@@ -480,6 +573,8 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
   if (points != nullptr) {
     m.points = std::make_shared<detail::LazyCellPoints>();
     m.points->source = points;
+    m.points->chunks = std::make_shared<detail::PointChunks>();
+    m.points->chunks->source = points;
   }
   return m;
 }
@@ -519,28 +614,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const double trunc = src.volume.truncation();
   const double lo_flat = 0.5 * cfg.h_obj;
 
-  // Both maps' band points by cell: from the maps when they have them, else bucketed here once a
-  // candidate needs them.
-  CellPoints own_source_cells, own_target_cells;
-  const auto cellsOf = [&](const PlaneMaps& maps, const PlaneSdf& plane, const HeightMap& hm,
-                           const std::vector<Eigen::Vector3f>& points,
-                           CellPoints& own) -> const CellPoints& {
-    if (const CellPoints* shared = bandPoints(maps, plane.plane, points, cfg)) return *shared;
-    if (!own.builtFor(points.size())) own = bucketBandPoints(plane.plane, hm, points, cfg);
-    return own;
-  };
-  // Appends the indices of the target points standing on target cell `c` (row-major): from
-  // lo_flat to the cell's height + one voxel, in cell order.
-  const auto appendStandingOn = [&](const CellPoints& cells, std::size_t c,
-                                    std::vector<std::uint32_t>& out) {
-    const double hi = static_cast<double>(ht.heights[c]) + vs;
-    for (std::uint32_t k = cells.start[c]; k < cells.start[c + 1]; ++k) {
-      const std::uint32_t i = cells.index[k];
-      const double z = tgt.plane.toLocal(target_points[i].cast<double>()).z();
-      if (z >= lo_flat && z <= hi) out.push_back(i);
-    }
-  };
-
   // Per target object label, its cells (row-major indices, raster order), once a candidate
   // needs them.
   std::vector<std::vector<std::size_t>> label_cells;
@@ -554,6 +627,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
 
   const int large_cells = largeObjectCells(cfg, ht.cell_size);
   std::vector<CandidateChange> out;
+  // (target cell, candidate) of each candidate's target region, for its points.
+  std::vector<std::pair<std::size_t, std::size_t>> target_region_cells;
   // Per cell: index of the candidate it belongs to and its height range.
   std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
   std::vector<float> cell_lo(cell_owner.size(), 0.0f), cell_hi(cell_owner.size(), 0.0f);
@@ -678,14 +753,34 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       }
       to.shape = signatureOf(ht, cells);
       finishRegion(to, tgt.volume, tgt.plane);
-      // Its points: those standing on its cells within its heights (input order).
-      const CellPoints& pc = cellsOf(tgt_maps, tgt, ht, target_points, own_target_cells);
-      std::vector<std::uint32_t> picked;
-      for (const std::size_t c : flat) appendStandingOn(pc, c, picked);
-      std::sort(picked.begin(), picked.end());
-      for (const std::uint32_t i : picked) to.points.push_back(target_points[i]);
+      // Its points (after the loop): those standing on its cells within its heights.
+      for (const std::size_t c : flat) target_region_cells.emplace_back(c, out.size());
     }
     out.push_back(std::move(cand));
+  }
+
+  if (!target_region_cells.empty()) {
+    // The target regions' points: those standing on a region's cell, from lo_flat to the cell's
+    // height + one voxel, in input order (one pass over the target points for all candidates; a
+    // cell of two candidates' regions gives its points to both).
+    std::sort(target_region_cells.begin(), target_region_cells.end());
+    std::vector<std::uint8_t> in_region(ht.numCells(), 0);
+    Eigen::AlignedBox2i box;
+    for (const auto& [c, k] : target_region_cells) {
+      in_region[c] = 1;
+      box.extend(Eigen::Vector2i(static_cast<int>(c % static_cast<std::size_t>(ht.width)),
+                                 static_cast<int>(c / static_cast<std::size_t>(ht.width))));
+    }
+    forBandPointsIn(
+        tgt.plane, ht, target_points, chunkBoxes(tgt_maps, target_points), cfg, box,
+        [&](std::size_t c) { return in_region[c] != 0; },
+        [&](std::size_t i, std::size_t c, double z) {
+          if (!(z >= lo_flat && z <= static_cast<double>(ht.heights[c]) + vs)) return;
+          auto it = std::lower_bound(target_region_cells.begin(), target_region_cells.end(),
+                                     std::make_pair(c, std::size_t{0}));
+          for (; it != target_region_cells.end() && it->first == c; ++it)
+            out[it->second].target_object.points.push_back(target_points[i]);
+        });
   }
 
   if (!out.empty()) {
@@ -739,19 +834,14 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           }
       }
     // The points of the owned cells within their height ranges, appended in input order.
-    const CellPoints& cells = cellsOf(src_maps, src, hs, source_points, own_source_cells);
-    std::vector<std::pair<std::uint32_t, int>> hits;  // (point, candidate)
-    for (std::size_t c = 0; c < owner.size(); ++c) {
-      if (owner[c] < 0) continue;
-      for (std::uint32_t k = cells.start[c]; k < cells.start[c + 1]; ++k) {
-        const std::uint32_t i = cells.index[k];
-        const double z = src.plane.toLocal(source_points[i].cast<double>()).z();
-        if (z >= lo_d[c] && z <= hi_d[c]) hits.emplace_back(i, owner[c]);
-      }
-    }
-    std::sort(hits.begin(), hits.end());
-    for (const auto& [i, cand] : hits)
-      out[static_cast<std::size_t>(cand)].region.points.push_back(source_points[i]);
+    forBandPointsIn(
+        src.plane, hs, source_points, chunkBoxes(src_maps, source_points), cfg,
+        Eigen::AlignedBox2i(Eigen::Vector2i(bx0, by0), Eigen::Vector2i(bx1, by1)),
+        [&](std::size_t c) { return owner[c] >= 0; },
+        [&](std::size_t i, std::size_t c, double z) {
+          if (z >= lo_d[c] && z <= hi_d[c])
+            out[static_cast<std::size_t>(owner[c])].region.points.push_back(source_points[i]);
+        });
   }
   if (!options.keep_stages) {
     r.source_heights = HeightMap{};
@@ -1041,6 +1131,13 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
                                                   &(ref ? reference : current).points());
     });
     for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
+    // One chunk index of each map's points for all its planes' maps (built on first use).
+    for (const bool ref : {true, false}) {
+      auto chunks = std::make_shared<detail::PointChunks>();
+      chunks->source = &(ref ? reference : current).points();
+      for (PlaneMaps& m : ref ? rmaps : cmaps)
+        if (m.points) m.points->chunks = chunks;
+    }
   }
   set.maps_ms = msSince(tp);
   tp = std::chrono::steady_clock::now();

@@ -486,6 +486,52 @@ TEST(ComparePlanePair, ABoxTakenOffALargeComponentIsTheBoxNotTheComponent) {
   }
 }
 
+TEST(ComparePlanePair, AChangesPointsComeFromTheChunksItsRegionMeets) {
+  // An 8 cm box replaced by a 4 cm one on a floor. Each map's points: far points (floor and
+  // above the band, 3 chunks of detail::kPointChunk that the region's box does not meet), the
+  // box tops across a chunk boundary, more far points. The removed region holds exactly the
+  // points on the old box's top and the replaced object exactly those on the new one's, in
+  // input order, whether the maps carry chunk boxes (detectChanges) or not (a full scan).
+  const auto tall = [](double u, double v) {
+    return std::abs(u - 0.1) < 0.04 && std::abs(v - 0.1) < 0.04 ? 0.08 : 0.0;
+  };
+  const auto low = [](double u, double v) {
+    return std::abs(u - 0.1) < 0.04 && std::abs(v - 0.1) < 0.04 ? 0.04 : 0.0;
+  };
+  const PlaneSdf before = floorWith(tall), after = floorWith(low);
+  const auto pointsWith = [](float top) {
+    std::vector<Eigen::Vector3f> pts;
+    for (int i = 0; i < 3 * static_cast<int>(detail::kPointChunk); ++i)
+      pts.emplace_back(-0.4f + 1e-4f * (i % 2000), -0.4f, i % 2 ? 0.0f : 0.9f);
+    for (int i = 0; i < 5000; ++i)  // on the top, inside its edges
+      pts.emplace_back(0.07f + 0.06f * (i % 71) / 70.0f, 0.07f + 0.06f * (i / 71) / 70.0f, top);
+    for (int i = 0; i < 1000; ++i) pts.emplace_back(0.4f, -0.4f + 8e-4f * i, 0.0f);
+    return pts;
+  };
+  const std::vector<Eigen::Vector3f> src_pts = pointsWith(0.08f), tgt_pts = pointsWith(0.04f);
+  const Config cfg;
+  PlaneMatch match;
+  match.source_id = match.target_id = 0;
+  std::vector<CandidateChange> out[2];
+  for (int chunked = 0; chunked < 2; ++chunked) {
+    const PlaneMaps src = computePlaneMaps(before, {before}, cfg, chunked ? &src_pts : nullptr);
+    const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg, chunked ? &tgt_pts : nullptr);
+    out[chunked] =
+        comparePlanePair(before, src, after, tgt, match, false, src_pts, tgt_pts, cfg, {}, nullptr);
+    ASSERT_EQ(out[chunked].size(), 1u);
+  }
+  const auto onTop = [](const std::vector<Eigen::Vector3f>& pts, float top) {
+    std::vector<Eigen::Vector3f> r;
+    for (const auto& p : pts)
+      if (p.z() == top && p.x() > 0.06f) r.push_back(p);
+    return r;
+  };
+  EXPECT_EQ(out[1][0].region.points, onTop(src_pts, 0.08f));
+  EXPECT_EQ(out[1][0].target_object.points, onTop(tgt_pts, 0.04f));
+  EXPECT_EQ(out[0][0].region.points, out[1][0].region.points);
+  EXPECT_EQ(out[0][0].target_object.points, out[1][0].target_object.points);
+}
+
 TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
   // A floor with a 10 cm box; points on the box top, on the floor and far above the band.
   const PlaneSdf floor = floorWith([](double u, double v) {
@@ -513,7 +559,7 @@ TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
   EXPECT_EQ(got[0]->index, expected.index);
   const PlaneMaps copy = maps;
   EXPECT_EQ(bandPoints(copy, floor.plane, points, cfg), got[0]);
-  // Other points, or maps computed without points: none (comparePlanePair buckets its own).
+  // Other points, or maps computed without points: none.
   const std::vector<Eigen::Vector3f> other = points;
   EXPECT_EQ(bandPoints(maps, floor.plane, other, cfg), nullptr);
   EXPECT_EQ(bandPoints(computePlaneMaps(floor, {floor}, cfg), floor.plane, points, cfg), nullptr);
