@@ -13,11 +13,13 @@ ObjectMap computeObjectMap(const HeightMap& hm, const Config& cfg) {
   ObjectMap om;
   static_cast<GridGeometry&>(om) = hm.geometry();
   Mask2D mask = maskAbove(hm, static_cast<float>(cfg.h_obj));
+  Components cc;
+  bool labelled = false;  // cc holds the components of `mask`
   if (cfg.object_min_solidity > 0.0) {
     // Speckle: components with too few cells whose 3x3 neighbourhood is all object keep only
     // their opening (those cells' 3x3 squares, all inside the component).
     const Mask2D core = erode(mask, 1);
-    const Components all = connectedComponents(mask, 1, 8);
+    Components all = connectedComponents(mask, 1, 8);
     std::vector<int> core_cells(all.areas.size() + 1, 0);
     for (std::size_t i = 0; i < mask.cells.size(); ++i)
       if (core.cells[i] != 0) ++core_cells[static_cast<std::size_t>(all.labels[i])];
@@ -31,9 +33,12 @@ ObjectMap computeObjectMap(const HeightMap& hm, const Config& cfg) {
       const Mask2D opened = dilate(core, 1);
       for (std::size_t i = 0; i < mask.cells.size(); ++i)
         if (speckle[static_cast<std::size_t>(all.labels[i])] != 0) mask.cells[i] = opened.cells[i];
+    } else {
+      cc = std::move(all);  // no speckle: the mask and its components stay
+      labelled = true;
     }
   }
-  Components cc = connectedComponents(mask, 1, 8);
+  if (!labelled) cc = connectedComponents(mask, 1, 8);
   om.labels = std::move(cc.labels);
   om.objects.resize(cc.areas.size());
   for (std::size_t l = 0; l < om.objects.size(); ++l) {
