@@ -1124,6 +1124,13 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     }
     std::sort(needed.begin(), needed.end());
     needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
+    // Largest volumes first (the threads take the next plane as they finish: the long ones
+    // start early instead of last).
+    const auto blocksOf = [&](const std::pair<bool, int>& n) {
+      return (n.first ? rp : cp)[static_cast<std::size_t>(n.second)].volume.numBlocks();
+    };
+    std::stable_sort(needed.begin(), needed.end(),
+                     [&](const auto& a, const auto& b) { return blocksOf(a) > blocksOf(b); });
     parallelFor(static_cast<int>(needed.size()), cfg.threads, [&](int k) {
       const auto [ref, id] = needed[static_cast<std::size_t>(k)];
       const auto i = static_cast<std::size_t>(id);
@@ -1158,8 +1165,16 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     std::vector<PlanePairResult> results(matches.size());
     std::vector<std::vector<CandidateChange>> found(matches.size());
     std::vector<RefinedTransforms> own(matches.size());
+    // Largest source maps first (results stay in pair order).
+    std::vector<std::size_t> order(matches.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    const auto cellsOf = [&](std::size_t i) {
+      return mapsOf(forward, matches[i].source_id).heights.numCells();
+    };
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return cellsOf(a) > cellsOf(b); });
     parallelFor(static_cast<int>(matches.size()), cfg.threads, [&](int k) {
-      const auto i = static_cast<std::size_t>(k);
+      const std::size_t i = order[static_cast<std::size_t>(k)];
       const PlaneMatch& m = matches[i];
       if (!forward) own[i] = refined;  // read only backwards
       found[i] =
