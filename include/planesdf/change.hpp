@@ -191,6 +191,7 @@ struct PointChunks {
   const std::vector<Eigen::Vector3f>* source = nullptr;  ///< the map's points()
   std::once_flag once;
   std::vector<Eigen::AlignedBox3f> boxes;
+  std::size_t num_points = 0;  ///< the points' count when built (points added since: not used)
 };
 /// The band points of one PlaneMaps, bucketed once on first use (see bandPoints), and the chunk
 /// boxes of the map's points (shared by the PlaneMaps of one map in detectChanges).

@@ -153,7 +153,8 @@ double maxHeight(const HeightMap& hm) {
 }
 
 /// The chunk boxes of `points` held by `chunks` (computed on the first call), or nullptr when
-/// `chunks` is null or made for other points.
+/// `chunks` is null, made for other points, or built before points were added (a
+/// ChangeDetector keeps the maps of an unchanged plane while the map's points grow).
 const std::vector<Eigen::AlignedBox3f>* chunkBoxes(
     const std::shared_ptr<detail::PointChunks>& chunks,
     const std::vector<Eigen::Vector3f>& points) {
@@ -168,10 +169,9 @@ const std::vector<Eigen::AlignedBox3f>* chunkBoxes(
         if (points[i].allFinite()) box.extend(points[i]);
       boxes.push_back(box);
     }
+    chunks->num_points = points.size();
   });
-  return chunks->boxes.size() == (points.size() + detail::kPointChunk - 1) / detail::kPointChunk
-             ? &chunks->boxes
-             : nullptr;
+  return chunks->num_points == points.size() ? &chunks->boxes : nullptr;
 }
 
 /// The chunk boxes of the points `maps` was computed with, when those are `points`.

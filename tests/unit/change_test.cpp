@@ -505,10 +505,11 @@ TEST(ComparePlanePair, AChangesPointsComeFromTheChunksItsRegionMeets) {
       pts.emplace_back(-0.4f + 1e-4f * (i % 2000), -0.4f, i % 2 ? 0.0f : 0.9f);
     for (int i = 0; i < 5000; ++i)  // on the top, inside its edges
       pts.emplace_back(0.07f + 0.06f * (i % 71) / 70.0f, 0.07f + 0.06f * (i / 71) / 70.0f, top);
-    for (int i = 0; i < 1000; ++i) pts.emplace_back(0.4f, -0.4f + 8e-4f * i, 0.0f);
+    for (int i = 0; i < 6000; ++i) pts.emplace_back(0.4f, -0.4f + 1e-4f * i, 0.0f);
     return pts;
   };
-  const std::vector<Eigen::Vector3f> src_pts = pointsWith(0.08f), tgt_pts = pointsWith(0.04f);
+  std::vector<Eigen::Vector3f> src_pts = pointsWith(0.08f);
+  const std::vector<Eigen::Vector3f> tgt_pts = pointsWith(0.04f);
   const Config cfg;
   PlaneMatch match;
   match.source_id = match.target_id = 0;
@@ -530,6 +531,19 @@ TEST(ComparePlanePair, AChangesPointsComeFromTheChunksItsRegionMeets) {
   EXPECT_EQ(out[1][0].target_object.points, onTop(tgt_pts, 0.04f));
   EXPECT_EQ(out[0][0].region.points, out[1][0].region.points);
   EXPECT_EQ(out[0][0].target_object.points, out[1][0].target_object.points);
+
+  // Points added after the chunk boxes were built (a ChangeDetector keeps an unchanged plane's
+  // maps while the map grows): one more on the old top, in the last chunk, whose box holds only
+  // far points. It is found (the stale boxes are not used).
+  const PlaneMaps src = computePlaneMaps(before, {before}, cfg, &src_pts);
+  const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg, &tgt_pts);
+  comparePlanePair(before, src, after, tgt, match, false, src_pts, tgt_pts, cfg, {}, nullptr);
+  src_pts.emplace_back(0.1f, 0.1f, 0.08f);
+  const auto grown =
+      comparePlanePair(before, src, after, tgt, match, false, src_pts, tgt_pts, cfg, {}, nullptr);
+  ASSERT_EQ(grown.size(), 1u);
+  EXPECT_EQ(grown[0].region.points, onTop(src_pts, 0.08f));
+  EXPECT_EQ(grown[0].region.points.back(), Eigen::Vector3f(0.1f, 0.1f, 0.08f));
 }
 
 TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
