@@ -194,21 +194,23 @@ void forBandPointsIn(const Plane& plane, const HeightMap& hm,
                      const Eigen::AlignedBox2i& box, Want&& want, F&& f) {
   if (hm.empty() || box.isEmpty() || points.empty()) return;
   const BandFilter in_band(plane, 0.5 * cfg.h_obj, maxHeight(hm) + hm.cell_size);
-  // With chunk boxes: only the chunks that meet the world box of the region's cells (grown by a
-  // cell) and band heights (grown by 1 mm).
+  // The box's cells grown by one, in plane-local metres.
+  const double cs = hm.cell_size;
+  const Eigen::Vector2d lo_uv((hm.i0 + box.min().x() - 1) * cs, (hm.j0 + box.min().y() - 1) * cs);
+  const Eigen::Vector2d hi_uv((hm.i0 + box.max().x() + 2) * cs, (hm.j0 + box.max().y() + 2) * cs);
+  // With chunk boxes: only the chunks that meet the world box of those cells and the band's
+  // heights (grown by 1 mm).
   Eigen::AlignedBox3f region;
   if (chunks != nullptr) {
-    const double cs = hm.cell_size;
     for (int k = 0; k < 8; ++k) {
-      const Eigen::Vector3d l((hm.i0 + ((k & 1) ? box.max().x() + 2 : box.min().x() - 1)) * cs,
-                              (hm.j0 + ((k & 2) ? box.max().y() + 2 : box.min().y() - 1)) * cs,
+      const Eigen::Vector3d l((k & 1) ? hi_uv.x() : lo_uv.x(), (k & 2) ? hi_uv.y() : lo_uv.y(),
                               (k & 4) ? in_band.hi + 1e-3 : in_band.lo - 1e-3);
       region.extend(plane.toWorld(l).cast<float>());
     }
     region.min().array() -= 1e-3f;
     region.max().array() += 1e-3f;
   }
-  // One band per pre-test: the heights, then u and v over the box grown by a cell.
+  // One band per pre-test: the heights, then u and v over the grown cells.
   const auto bandAlong = [&](int axis, double lo, double hi) {
     const Eigen::Vector3d n = plane.frame_axes.col(axis);
     return std::vector<detail::BandF>{{static_cast<float>(n.x()), static_cast<float>(n.y()),
@@ -216,11 +218,9 @@ void forBandPointsIn(const Plane& plane, const HeightMap& hm,
                                        static_cast<float>(-n.dot(plane.frame_origin)),
                                        static_cast<float>(lo), static_cast<float>(hi)}};
   };
-  const double cs = hm.cell_size;
-  const std::vector<detail::BandF> bands[3] = {
-      bandAlong(2, in_band.lo, in_band.hi),
-      bandAlong(0, (hm.i0 + box.min().x() - 1) * cs, (hm.i0 + box.max().x() + 2) * cs),
-      bandAlong(1, (hm.j0 + box.min().y() - 1) * cs, (hm.j0 + box.max().y() + 2) * cs)};
+  const std::vector<detail::BandF> bands[3] = {bandAlong(2, in_band.lo, in_band.hi),
+                                               bandAlong(0, lo_uv.x(), hi_uv.x()),
+                                               bandAlong(1, lo_uv.y(), hi_uv.y())};
   constexpr std::size_t kChunk = 512;
   alignas(64) std::uint8_t maybe[3][kChunk];
   static_assert(detail::kPointChunk % kChunk == 0, "pre-test chunks tile the point chunks");

@@ -545,9 +545,9 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
     }
   };
   // Scores every candidate of a grid centred on `c` (ties keep the smaller motion).
-  const auto gridSearch = [&](const std::vector<Sample>& smp, YawPlacements& placed,
-                              const Groups& grp, const Cand& c, int ns, double st, int ny,
-                              double yst, int slack, Cand* best_c, Score* best_s) {
+  const auto gridSearch = [&](YawPlacements& placed, const Groups& grp, const Cand& c, int ns,
+                              double st, int ny, double yst, int slack, Cand* best_c,
+                              Score* best_s) {
     std::vector<Cand> cands;
     for (int iy = -ny; iy <= ny; ++iy)
       for (int iv = -ns; iv <= ns; ++iv)
@@ -567,13 +567,13 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
       const int ox = wholeCells(k.du), oy = wholeCells(k.dv);
       const bool whole =
           ox != std::numeric_limits<int>::min() && oy != std::numeric_limits<int>::min();
-      const Score sc =
-          whole ? scorePlaced(placed.arrays, grp, tgt, placed.at(tgt, pivot, k.yaw_deg), ox, oy,
-                              cfg.delta_h, cfg.simd, slack, max_cost)
-                : scorePlaced(
-                      placed.arrays, grp, tgt,
-                      place(smp, tgt, pivot, k.yaw_deg * kPi / 180.0, Eigen::Vector2d(k.du, k.dv)),
-                      0, 0, cfg.delta_h, cfg.simd, slack, max_cost);
+      const Score sc = whole
+                           ? scorePlaced(placed.arrays, grp, tgt, placed.at(tgt, pivot, k.yaw_deg),
+                                         ox, oy, cfg.delta_h, cfg.simd, slack, max_cost)
+                           : scorePlaced(placed.arrays, grp, tgt,
+                                         place(*placed.samples, tgt, pivot, k.yaw_deg * kPi / 180.0,
+                                               Eigen::Vector2d(k.du, k.dv)),
+                                         0, 0, cfg.delta_h, cfg.simd, slack, max_cost);
       if (!any || better(sc, *best_s)) {
         *best_s = sc;
         *best_c = k;
@@ -597,7 +597,7 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   YawPlacements placed{&samples, arraysOf(samples), {}};
   Cand coarse;
   Score coarse_score;
-  gridSearch(coarse_samples, coarse_placed, groupsOf(coarse_samples, n_groups), Cand{},
+  gridSearch(coarse_placed, groupsOf(coarse_samples, n_groups), Cand{},
              static_cast<int>(std::floor(search.max_shift / cstep + 1e-9)), cstep,
              static_cast<int>(std::floor(search.max_yaw_deg / cystep + 1e-9)), cystep, 1, &coarse,
              &coarse_score);
@@ -607,12 +607,11 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   const int fine_yaw_steps = static_cast<int>(std::ceil(cystep / ystep));
   Cand fine;
   Score best;
-  gridSearch(samples, placed, groups, coarse, 2, step, fine_yaw_steps, ystep, 0, &fine, &best);
+  gridSearch(placed, groups, coarse, 2, step, fine_yaw_steps, ystep, 0, &fine, &best);
   if (coarse.du != 0.0 || coarse.dv != 0.0 || coarse.yaw_deg != 0.0) {
     Cand near;
     Score near_score;
-    gridSearch(samples, placed, groups, Cand{}, 2, step, fine_yaw_steps, ystep, 0, &near,
-               &near_score);
+    gridSearch(placed, groups, Cand{}, 2, step, fine_yaw_steps, ystep, 0, &near, &near_score);
     if (better(near_score, best) || (!better(best, near_score) && near.motion() < fine.motion())) {
       fine = near;
       best = near_score;
