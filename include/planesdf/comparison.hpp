@@ -43,10 +43,9 @@ Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg);
 
 /// A changed region grown to whole objects.
 struct Blob {
-  Mask2D mask;                                         ///< the blob's cells (source grid)
-  std::vector<Eigen::Vector2i> cells;                  ///< the same cells, raster order (y, then x)
-  std::vector<int> object_labels;                      ///< object-map labels it covers, ascending
-  int area = 0;                                        ///< cells
+  std::vector<Eigen::Vector2i> cells;  ///< its cells (source grid), raster order (y, then x)
+  std::vector<int> object_labels;      ///< object-map labels it covers, ascending
+  int area = 0;                        ///< cells
   Eigen::Vector2i bbox_min = Eigen::Vector2i::Zero();  ///< cell (x, y), inclusive
   Eigen::Vector2i bbox_max = Eigen::Vector2i::Zero();  ///< cell (x, y), inclusive
   /// True when it holds no whole object, only changed cells of objects it touches a sliver of

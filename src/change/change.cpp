@@ -3,6 +3,10 @@
 
 #include "planesdf/change.hpp"
 
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
+
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
@@ -152,6 +156,38 @@ double maxHeight(const HeightMap& hm) {
   return static_cast<double>(m);
 }
 
+/// The box of the finite points among points[b, e) (empty when there is none).
+Eigen::AlignedBox3f finiteBox(const std::vector<Eigen::Vector3f>& points, std::size_t b,
+                              std::size_t e) {
+  Eigen::AlignedBox3f box;
+#if defined(__SSE2__)
+  // A point as 4 lanes (x, y, z and the next point's x, which is ignored); the array's last
+  // point, whose fourth lane would lie past its end, is left to the scalar loop below.
+  const std::size_t last = std::min(e, points.size() - 1);
+  const float inf = std::numeric_limits<float>::infinity();
+  __m128 lo = _mm_set1_ps(inf), hi = _mm_set1_ps(-inf);
+  bool any = false;
+  for (; b < last; ++b) {
+    const __m128 p = _mm_loadu_ps(points[b].data());
+    // Finite: x - x == 0 in the first three lanes (NaN and infinities give NaN).
+    if ((_mm_movemask_ps(_mm_cmpeq_ps(_mm_sub_ps(p, p), _mm_setzero_ps())) & 7) != 7) continue;
+    lo = _mm_min_ps(lo, p);
+    hi = _mm_max_ps(hi, p);
+    any = true;
+  }
+  if (any) {
+    alignas(16) float l[4], h[4];
+    _mm_store_ps(l, lo);
+    _mm_store_ps(h, hi);
+    box.extend(Eigen::Vector3f(l[0], l[1], l[2]));
+    box.extend(Eigen::Vector3f(h[0], h[1], h[2]));
+  }
+#endif
+  for (; b < e; ++b)
+    if (points[b].allFinite()) box.extend(points[b]);
+  return box;
+}
+
 /// The chunk boxes of `points` held by `chunks` (computed on the first call), or nullptr when
 /// `chunks` is null, made for other points, or built before points were added (a
 /// ChangeDetector keeps the maps of an unchanged plane while the map's points grow).
@@ -162,13 +198,8 @@ const std::vector<Eigen::AlignedBox3f>* chunkBoxes(
   std::call_once(chunks->once, [&] {
     auto& boxes = chunks->boxes;
     boxes.clear();
-    for (std::size_t b = 0; b < points.size(); b += detail::kPointChunk) {
-      Eigen::AlignedBox3f box;
-      const std::size_t e = std::min(points.size(), b + detail::kPointChunk);
-      for (std::size_t i = b; i < e; ++i)
-        if (points[i].allFinite()) box.extend(points[i]);
-      boxes.push_back(box);
-    }
+    for (std::size_t b = 0; b < points.size(); b += detail::kPointChunk)
+      boxes.push_back(finiteBox(points, b, std::min(points.size(), b + detail::kPointChunk)));
     chunks->num_points = points.size();
   });
   return chunks->num_points == points.size() ? &chunks->boxes : nullptr;
@@ -605,7 +636,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   if (refine_inplane)
     r.refinement = refineInPlane(hs, os, ht, ot, r.match.T_target_source_local, cfg);
   const Pose T = r.match.T_target_source_local;
-
   r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume);
   r.validations.clear();
   r.in_place.clear();
@@ -629,9 +659,14 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   std::vector<CandidateChange> out;
   // (target cell, candidate) of each candidate's target region, for its points.
   std::vector<std::pair<std::size_t, std::size_t>> target_region_cells;
-  // Per cell: index of the candidate it belongs to and its height range.
-  std::vector<int> cell_owner(hs.empty() ? 0 : hs.numCells(), -1);
-  std::vector<float> cell_lo(cell_owner.size(), 0.0f), cell_hi(cell_owner.size(), 0.0f);
+  // The cells of the candidates' columns: each with the index of its candidate and its height
+  // range (a few cells of a large map: not arrays over the whole map).
+  struct OwnedCell {
+    std::size_t cell;  ///< row-major
+    int owner;
+    float lo, hi;
+  };
+  std::vector<OwnedCell> owned;
 
   for (const Blob& blob : r.change.blobs) {
     CandidateChange cand;
@@ -714,11 +749,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     reg.shape = signatureOf(hs, blob.cells);
     finishRegion(reg, src.volume, src.plane);
     const int idx = static_cast<int>(out.size());
-    for (const auto& rg : ranges) {
-      cell_owner[rg.first] = idx;
-      cell_lo[rg.first] = rg.second.first;
-      cell_hi[rg.first] = rg.second.second;
-    }
+    for (const auto& rg : ranges)
+      owned.push_back({rg.first, idx, rg.second.first, rg.second.second});
 
     if (!target_labels.empty()) {  // the target objects it lands on, as a region
       ChangeRegion& to = cand.target_object;
@@ -783,64 +815,84 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         });
   }
 
-  if (!out.empty()) {
+  if (!owned.empty()) {
     // Points: DESIGN's "input points that fused into" the blob's voxels. A point updates the
     // voxels within the truncation of its surface, so the points within truncation_voxels cells
     // of the blob's columns (with the neighbouring blob cell's upper bound, from the plane up:
-    // vertical faces seen from the side) count too; a cell between two blobs goes to the first.
+    // vertical faces seen from the side) count too; a cell between two blobs goes to the first
+    // (in raster order) of the owned cells within its ring.
     const int kPointRing = std::max(0, cfg.truncation_voxels);
-    std::vector<int> owner = cell_owner;
-    std::vector<float> lo_d = cell_lo, hi_d = cell_hi;
-    // Only cells with an owned cell within the ring can change: those of the owned cells' box,
-    // grown, whose window holds an owned cell (summed-area table of the owned cells).
+    // Raster order; a cell listed twice keeps its last entry.
+    std::stable_sort(owned.begin(), owned.end(),
+                     [](const OwnedCell& a, const OwnedCell& b) { return a.cell < b.cell; });
+    {
+      std::vector<OwnedCell> last;
+      last.reserve(owned.size());
+      for (const OwnedCell& o : owned) {
+        if (!last.empty() && last.back().cell == o.cell)
+          last.back() = o;
+        else
+          last.push_back(o);
+      }
+      owned.swap(last);
+    }
+    const auto W = static_cast<std::size_t>(hs.width);
     Eigen::AlignedBox2i box;
-    for (int y = 0; y < hs.height; ++y)
-      for (int x = 0; x < hs.width; ++x)
-        if (cell_owner[hs.index(x, y)] >= 0) box.extend(Eigen::Vector2i(x, y));
-    if (box.isEmpty()) box.extend(Eigen::Vector2i(0, 0));  // no owned cell: nothing to grow
+    for (const OwnedCell& o : owned)
+      box.extend(Eigen::Vector2i(static_cast<int>(o.cell % W), static_cast<int>(o.cell / W)));
+    // The owned cells' box grown by the ring, with the owner and height range of each of its
+    // cells (-1: none).
     const int bx0 = std::max(0, box.min().x() - kPointRing);
     const int by0 = std::max(0, box.min().y() - kPointRing);
     const int bx1 = std::min(hs.width - 1, box.max().x() + kPointRing);
     const int by1 = std::min(hs.height - 1, box.max().y() + kPointRing);
-    const int bw = bx1 - bx0 + 2;  // table of (bw) x (bh), one leading row and column of 0
-    std::vector<int> sat(static_cast<std::size_t>(bw) * static_cast<std::size_t>(by1 - by0 + 2), 0);
-    const auto satAt = [&](int x, int y) -> int& {  // owned cells in [bx0, x) x [by0, y)
-      return sat[static_cast<std::size_t>(y - by0) * static_cast<std::size_t>(bw) +
-                 static_cast<std::size_t>(x - bx0)];
+    const auto bw = static_cast<std::size_t>(bx1 - bx0 + 1);
+    const std::size_t box_cells = bw * static_cast<std::size_t>(by1 - by0 + 1);
+    const auto local = [&](int x, int y) {
+      return static_cast<std::size_t>(y - by0) * bw + static_cast<std::size_t>(x - bx0);
     };
-    for (int y = by0; y <= by1; ++y)
-      for (int x = bx0; x <= bx1; ++x)
-        satAt(x + 1, y + 1) = satAt(x, y + 1) + satAt(x + 1, y) - satAt(x, y) +
-                              (cell_owner[hs.index(x, y)] >= 0 ? 1 : 0);
-    for (int y = by0; y <= by1; ++y)
-      for (int x = bx0; x <= bx1; ++x) {
-        const std::size_t i = hs.index(x, y);
-        if (cell_owner[i] >= 0) continue;
-        const int x0 = std::max(bx0, x - kPointRing), x1 = std::min(bx1, x + kPointRing);
-        const int y0 = std::max(by0, y - kPointRing), y1 = std::min(by1, y + kPointRing);
-        if (satAt(x1 + 1, y1 + 1) - satAt(x0, y1 + 1) - satAt(x1 + 1, y0) + satAt(x0, y0) == 0)
-          continue;
-        for (int ny = y0; ny <= y1; ++ny)
-          for (int nx = x0; nx <= x1; ++nx) {
-            const std::size_t n = hs.index(nx, ny);
-            if (cell_owner[n] < 0) continue;
-            if (owner[i] < 0) {
-              owner[i] = cell_owner[n];
-              lo_d[i] = static_cast<float>(lo_flat);
-              hi_d[i] = cell_hi[n];
-            } else if (owner[i] == cell_owner[n]) {
-              hi_d[i] = std::max(hi_d[i], cell_hi[n]);
-            }
+    std::vector<int> owner(box_cells, -1);
+    std::vector<float> lo_d(box_cells, 0.0f), hi_d(box_cells, 0.0f);
+    std::vector<std::uint8_t> is_owned(box_cells, 0);
+    for (const OwnedCell& o : owned) {
+      const std::size_t l = local(static_cast<int>(o.cell % W), static_cast<int>(o.cell / W));
+      owner[l] = o.owner;
+      lo_d[l] = o.lo;
+      hi_d[l] = o.hi;
+      is_owned[l] = 1;
+    }
+    // Each owned cell, in raster order, offers itself to the unowned cells of its ring: a cell
+    // takes the first owner offered (the first owned cell of its own ring in raster order) and
+    // the highest upper bound among that owner's cells.
+    for (const OwnedCell& o : owned) {
+      const int x = static_cast<int>(o.cell % W), y = static_cast<int>(o.cell / W);
+      const int x0 = std::max(bx0, x - kPointRing), x1 = std::min(bx1, x + kPointRing);
+      const int y0 = std::max(by0, y - kPointRing), y1 = std::min(by1, y + kPointRing);
+      for (int ny = y0; ny <= y1; ++ny)
+        for (int nx = x0; nx <= x1; ++nx) {
+          const std::size_t l = local(nx, ny);
+          if (is_owned[l]) continue;
+          if (owner[l] < 0) {
+            owner[l] = o.owner;
+            lo_d[l] = static_cast<float>(lo_flat);
+            hi_d[l] = o.hi;
+          } else if (owner[l] == o.owner) {
+            hi_d[l] = std::max(hi_d[l], o.hi);
           }
-      }
+        }
+    }
+    const auto localOf = [&](std::size_t c) {
+      return local(static_cast<int>(c % W), static_cast<int>(c / W));
+    };
     // The points of the owned cells within their height ranges, appended in input order.
     forBandPointsIn(
         src.plane, hs, source_points, chunkBoxes(src_maps, source_points), cfg,
         Eigen::AlignedBox2i(Eigen::Vector2i(bx0, by0), Eigen::Vector2i(bx1, by1)),
-        [&](std::size_t c) { return owner[c] >= 0; },
+        [&](std::size_t c) { return owner[localOf(c)] >= 0; },
         [&](std::size_t i, std::size_t c, double z) {
-          if (z >= lo_d[c] && z <= hi_d[c])
-            out[static_cast<std::size_t>(owner[c])].region.points.push_back(source_points[i]);
+          const std::size_t l = localOf(c);
+          if (z >= lo_d[l] && z <= hi_d[l])
+            out[static_cast<std::size_t>(owner[l])].region.points.push_back(source_points[i]);
         });
   }
   if (!options.keep_stages) {

@@ -87,7 +87,9 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
   return changed;
 }
 
-Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg) {
+namespace {
+
+void checkCleaningParams(const Config& cfg) {
   if (cfg.min_change_cells < 0) {
     throw Error("config",
                 "min_change_cells must be >= 0, got " + std::to_string(cfg.min_change_cells));
@@ -95,6 +97,12 @@ Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg) {
   if (cfg.dilation_cells < 0) {
     throw Error("config", "dilation_cells must be >= 0, got " + std::to_string(cfg.dilation_cells));
   }
+}
+
+}  // namespace
+
+Mask2D cleanChangeMask(const Mask2D& mask, const Config& cfg) {
+  checkCleaningParams(cfg);
   return dilate(removeSmallComponents(mask, cfg.min_change_cells), cfg.dilation_cells);
 }
 
@@ -147,7 +155,6 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
   for (std::size_t k = 0; k < blob_of.size(); ++k) {
     if (blob_of[k] < 0) continue;
     Blob& b = blobs[static_cast<std::size_t>(blob_of[k])];
-    b.mask = Mask2D::zeros(cleaned.geometry());
     b.bbox_min = Eigen::Vector2i(cleaned.width, cleaned.height);
     b.bbox_max = Eigen::Vector2i(-1, -1);
     b.partial = static_cast<int>(k) > n_obj;
@@ -164,7 +171,6 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
                                                          : 0;
       if (key == 0) continue;
       Blob& b = blobs[static_cast<std::size_t>(blob_of[static_cast<std::size_t>(key)])];
-      b.mask.set(x, y);
       b.cells.emplace_back(x, y);
       ++b.area;
       b.bbox_min = b.bbox_min.cwiseMin(Eigen::Vector2i(x, y));
@@ -212,8 +218,10 @@ HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
     for (std::size_t i = 0; i < out.raw.cells.size(); ++i)
       if (out.vacated.cells[i]) out.raw.cells[i] = 1;
   }
-  out.cleaned = cleanChangeMask(out.raw, cfg);  // validates the cleaning parameters
+  // cleanChangeMask(raw), with its first step kept as `filtered`.
+  checkCleaningParams(cfg);
   out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
+  out.cleaned = dilate(out.filtered, cfg.dilation_cells);
   out.blobs = changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap,
                            largeObjectCells(cfg, src.cell_size));
   out.blob_mask = Mask2D::zeros(src.geometry());

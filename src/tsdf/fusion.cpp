@@ -1114,8 +1114,10 @@ inline void fuseRowScalar(const RowKernel& k, float rx, float ry, float rz, Tsdf
 /// fuseRowScalar for the 8 voxels of a row at once (AVX2, no FMA: every lane performs the
 /// scalar code's operations in the same order, so the results are bit-identical). Lanes that
 /// the scalar code leaves by `continue` are masked out; gathers read only active lanes.
-__attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, float ry, float rz,
-                                                 TsdfVoxel* voxels, BlockOutcome& out) {
+__attribute__((target("avx2"), always_inline)) inline void fuseRowAvx2(const RowKernel& k, float rx,
+                                                                       float ry, float rz,
+                                                                       TsdfVoxel* voxels,
+                                                                       BlockOutcome& out) {
   static_assert(kTsdfBlockSide == 8, "one AVX2 vector per row of voxels");
   const __m256 xi = _mm256_setr_ps(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
   const __m256 px = _mm256_add_ps(_mm256_set1_ps(rx), _mm256_mul_ps(xi, _mm256_set1_ps(k.ax_x)));
@@ -1250,6 +1252,21 @@ __attribute__((target("avx2"))) void fuseRowAvx2(const RowKernel& k, float rx, f
   _mm256_storeu_ps(raw, _mm256_unpacklo_ps(s_out, w_out));
   _mm256_storeu_ps(raw + 8, _mm256_unpackhi_ps(s_out, w_out));
 }
+
+/// fuseRowAvx2 for the kTsdfBlockSide rows of one slice of a block: the row's first centre
+/// moves by `ay` from (sx, sy, sz); `voxels` is the slice's first voxel. One function, so that
+/// the rows' independent work overlaps.
+__attribute__((target("avx2"))) void fuseSliceAvx2(const RowKernel& k, float sx, float sy, float sz,
+                                                   float ay_x, float ay_y, float ay_z,
+                                                   TsdfVoxel* voxels, BlockOutcome& out) {
+  for (int y = 0; y < kTsdfBlockSide; ++y)  // the next slice's rows (one cache line each)
+    __builtin_prefetch(voxels + (kTsdfBlockSide + y) * kTsdfBlockSide, 1);
+  for (int y = 0; y < kTsdfBlockSide; ++y) {
+    const float fyy = static_cast<float>(y);
+    fuseRowAvx2(k, sx + fyy * ay_x, sy + fyy * ay_y, sz + fyy * ay_z, voxels + y * kTsdfBlockSide,
+                out);
+  }
+}
 #endif
 
 /// Pass 2 for one block (integer index `index`, from the volume's index array: reading
@@ -1317,6 +1334,13 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Eigen::Vector3i& index, 
     const float h = static_cast<float>(c0_local.z() + z * vs);
     return h >= prm.band.vox_lo && h <= prm.band.vox_hi;
   };
+  {  // the first band slice's rows (one cache line each) are requested before the work below
+    int z0 = 0;
+    while (z0 < kTsdfBlockSide && !sliceInBand(z0)) ++z0;
+    if (z0 < kTsdfBlockSide)
+      for (int y = 0; y < kTsdfBlockSide; ++y)
+        __builtin_prefetch(&blk.voxels[(z0 * kTsdfBlockSide + y) * kTsdfBlockSide], 1);
+  }
   const auto sliceOccluded = [&](int z) {
     return c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from;
   };
@@ -1388,19 +1412,19 @@ BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Eigen::Vector3i& index, 
       if (!out.in_view) out.in_view = sliceInView(z);
       continue;
     }
-    for (int y = 0; y < kTsdfBlockSide; ++y) {
-      const float fz = static_cast<float>(z), fyy = static_cast<float>(y);
-      const float rx = c0.x() + fz * az.x() + fyy * ay.x();
-      const float ry = c0.y() + fz * az.y() + fyy * ay.y();
-      const float rz = c0.z() + fz * az.z() + fyy * ay.z();
-      TsdfVoxel* voxels = &blk.voxels[(z * kTsdfBlockSide + y) * kTsdfBlockSide];
+    const float fz = static_cast<float>(z);
+    const float sx = c0.x() + fz * az.x(), sy = c0.y() + fz * az.y(), sz = c0.z() + fz * az.z();
+    TsdfVoxel* slice = &blk.voxels[z * kTsdfBlockSide * kTsdfBlockSide];
 #if PLANESDF_AVX2_KERNEL
-      if (prm.simd) {
-        fuseRowAvx2(kernel, rx, ry, rz, voxels, out);
-        continue;
-      }
+    if (prm.simd) {
+      fuseSliceAvx2(kernel, sx, sy, sz, ay.x(), ay.y(), ay.z(), slice, out);
+      continue;
+    }
 #endif
-      fuseRowScalar(kernel, rx, ry, rz, voxels, out);
+    for (int y = 0; y < kTsdfBlockSide; ++y) {
+      const float fyy = static_cast<float>(y);
+      fuseRowScalar(kernel, sx + fyy * ay.x(), sy + fyy * ay.y(), sz + fyy * ay.z(),
+                    slice + y * kTsdfBlockSide, out);
     }
   }
   return out;

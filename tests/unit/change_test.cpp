@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <limits>
 #include <sstream>
 #include <thread>
 
@@ -503,9 +504,16 @@ TEST(ComparePlanePair, AChangesPointsComeFromTheChunksItsRegionMeets) {
     std::vector<Eigen::Vector3f> pts;
     for (int i = 0; i < 3 * static_cast<int>(detail::kPointChunk); ++i)
       pts.emplace_back(-0.4f + 1e-4f * (i % 2000), -0.4f, i % 2 ? 0.0f : 0.9f);
-    for (int i = 0; i < 5000; ++i)  // on the top, inside its edges
+    const float nan = std::numeric_limits<float>::quiet_NaN();
+    const float inf = std::numeric_limits<float>::infinity();
+    for (int i = 0; i < 5000; ++i) {  // on the top, inside its edges
       pts.emplace_back(0.07f + 0.06f * (i % 71) / 70.0f, 0.07f + 0.06f * (i / 71) / 70.0f, top);
+      if (i == 1000) pts.emplace_back(nan, nan, nan);  // invalid points: in no chunk's box
+      if (i == 2000) pts.emplace_back(0.1f, 0.1f, inf);
+    }
     for (int i = 0; i < 6000; ++i) pts.emplace_back(0.4f, -0.4f + 1e-4f * i, 0.0f);
+    // The array's last point on the top: its chunk's box (far points otherwise) holds it.
+    pts.emplace_back(0.1f, 0.1f, top);
     return pts;
   };
   std::vector<Eigen::Vector3f> src_pts = pointsWith(0.08f);
@@ -534,16 +542,17 @@ TEST(ComparePlanePair, AChangesPointsComeFromTheChunksItsRegionMeets) {
 
   // Points added after the chunk boxes were built (a ChangeDetector keeps an unchanged plane's
   // maps while the map grows): one more on the old top, in the last chunk, whose box holds only
-  // far points. It is found (the stale boxes are not used).
+  // far points and the top point before it (built for one point less, it does not hold the new
+  // one). It is found (the stale boxes are not used).
   const PlaneMaps src = computePlaneMaps(before, {before}, cfg, &src_pts);
   const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg, &tgt_pts);
   comparePlanePair(before, src, after, tgt, match, false, src_pts, tgt_pts, cfg, {}, nullptr);
-  src_pts.emplace_back(0.1f, 0.1f, 0.08f);
+  src_pts.emplace_back(0.12f, 0.12f, 0.08f);
   const auto grown =
       comparePlanePair(before, src, after, tgt, match, false, src_pts, tgt_pts, cfg, {}, nullptr);
   ASSERT_EQ(grown.size(), 1u);
   EXPECT_EQ(grown[0].region.points, onTop(src_pts, 0.08f));
-  EXPECT_EQ(grown[0].region.points.back(), Eigen::Vector3f(0.1f, 0.1f, 0.08f));
+  EXPECT_EQ(grown[0].region.points.back(), Eigen::Vector3f(0.12f, 0.12f, 0.08f));
 }
 
 TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {

@@ -2,6 +2,7 @@
 // refinement, on height maps built by hand: a flat 60x60 map (7 mm cells) with 8 cm boxes.
 
 #include <gtest/gtest.h>
+#include <algorithm>
 
 #include <cmath>
 #include <random>
@@ -193,7 +194,10 @@ TEST(HeightCompare, BlobsGrowToWholeObjectComponent) {
   ASSERT_EQ(blobs.size(), 1u);
   EXPECT_EQ(blobs[0].area, 12 * 4 + 4 * 10);
   EXPECT_EQ(blobs[0].cells.size(), 88u);
-  EXPECT_EQ(blobs[0].mask.count(), 88u);
+  for (const Eigen::Vector2i& c : blobs[0].cells)  // every cell on the object, none twice
+    EXPECT_EQ(objects.at(c.x(), c.y()), objects.at(10, 10));
+  EXPECT_TRUE(std::adjacent_find(blobs[0].cells.begin(), blobs[0].cells.end()) ==
+              blobs[0].cells.end());
   EXPECT_EQ(blobs[0].object_labels, std::vector<int>{objects.at(10, 10)});
   EXPECT_EQ(blobs[0].bbox_min, Eigen::Vector2i(10, 10));
   EXPECT_EQ(blobs[0].bbox_max, Eigen::Vector2i(21, 23));
