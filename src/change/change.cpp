@@ -660,9 +660,10 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   // (target cell, candidate) of each candidate's target region, for its points.
   std::vector<std::pair<std::size_t, std::size_t>> target_region_cells;
   // The cells of the candidates' columns: each with the index of its candidate and its height
-  // range (a few cells of a large map: not arrays over the whole map).
+  // range (a few cells of a large map: not arrays over the whole map). Blobs are disjoint, so
+  // no cell is listed twice.
   struct OwnedCell {
-    std::size_t cell;  ///< row-major
+    int x, y;
     int owner;
     float lo, hi;
   };
@@ -674,7 +675,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     reg.plane_id = src.plane.id;
     cand.target_plane_id = tgt.plane.id;
     std::vector<Eigen::Vector3i> voxels;
-    std::vector<std::pair<std::size_t, std::pair<float, float>>> ranges;
+    std::vector<OwnedCell> ranges;          // its columns' height ranges (owner set once accepted)
     std::map<int, int> target_labels;       // target object label -> blob cells landing on it
     std::vector<std::size_t> landed_cells;  // target cells (row-major) on an object it lands on
     int on_target_objects = 0;
@@ -700,8 +701,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       if (lo >= h_src) continue;  // the other map is as high here: this column did not change
       const double hi = static_cast<double>(h_src) + trunc;
       columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo - vs, hi, cfg.w_min, voxels);
-      ranges.push_back(
-          {hs.index(c.x(), c.y()), {static_cast<float>(lo), h_src + static_cast<float>(vs)}});
+      ranges.push_back({c.x(), c.y(), -1, static_cast<float>(lo), h_src + static_cast<float>(vs)});
     }
     cand.target_object_overlap =
         blob.cells.empty() ? 0.0 : static_cast<double>(on_target_objects) / blob.cells.size();
@@ -749,8 +749,10 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     reg.shape = signatureOf(hs, blob.cells);
     finishRegion(reg, src.volume, src.plane);
     const int idx = static_cast<int>(out.size());
-    for (const auto& rg : ranges)
-      owned.push_back({rg.first, idx, rg.second.first, rg.second.second});
+    for (OwnedCell rg : ranges) {
+      rg.owner = idx;
+      owned.push_back(rg);
+    }
 
     if (!target_labels.empty()) {  // the target objects it lands on, as a region
       ChangeRegion& to = cand.target_object;
@@ -822,24 +824,11 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // vertical faces seen from the side) count too; a cell between two blobs goes to the first
     // (in raster order) of the owned cells within its ring.
     const int kPointRing = std::max(0, cfg.truncation_voxels);
-    // Raster order; a cell listed twice keeps its last entry.
-    std::stable_sort(owned.begin(), owned.end(),
-                     [](const OwnedCell& a, const OwnedCell& b) { return a.cell < b.cell; });
-    {
-      std::vector<OwnedCell> last;
-      last.reserve(owned.size());
-      for (const OwnedCell& o : owned) {
-        if (!last.empty() && last.back().cell == o.cell)
-          last.back() = o;
-        else
-          last.push_back(o);
-      }
-      owned.swap(last);
-    }
-    const auto W = static_cast<std::size_t>(hs.width);
+    std::sort(owned.begin(), owned.end(), [](const OwnedCell& a, const OwnedCell& b) {
+      return std::tie(a.y, a.x) < std::tie(b.y, b.x);  // raster order
+    });
     Eigen::AlignedBox2i box;
-    for (const OwnedCell& o : owned)
-      box.extend(Eigen::Vector2i(static_cast<int>(o.cell % W), static_cast<int>(o.cell / W)));
+    for (const OwnedCell& o : owned) box.extend(Eigen::Vector2i(o.x, o.y));
     // The owned cells' box grown by the ring, with the owner and height range of each of its
     // cells (-1: none).
     const int bx0 = std::max(0, box.min().x() - kPointRing);
@@ -855,7 +844,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     std::vector<float> lo_d(box_cells, 0.0f), hi_d(box_cells, 0.0f);
     std::vector<std::uint8_t> is_owned(box_cells, 0);
     for (const OwnedCell& o : owned) {
-      const std::size_t l = local(static_cast<int>(o.cell % W), static_cast<int>(o.cell / W));
+      const std::size_t l = local(o.x, o.y);
       owner[l] = o.owner;
       lo_d[l] = o.lo;
       hi_d[l] = o.hi;
@@ -865,9 +854,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // takes the first owner offered (the first owned cell of its own ring in raster order) and
     // the highest upper bound among that owner's cells.
     for (const OwnedCell& o : owned) {
-      const int x = static_cast<int>(o.cell % W), y = static_cast<int>(o.cell / W);
-      const int x0 = std::max(bx0, x - kPointRing), x1 = std::min(bx1, x + kPointRing);
-      const int y0 = std::max(by0, y - kPointRing), y1 = std::min(by1, y + kPointRing);
+      const int x0 = std::max(bx0, o.x - kPointRing), x1 = std::min(bx1, o.x + kPointRing);
+      const int y0 = std::max(by0, o.y - kPointRing), y1 = std::min(by1, o.y + kPointRing);
       for (int ny = y0; ny <= y1; ++ny)
         for (int nx = x0; nx <= x1; ++nx) {
           const std::size_t l = local(nx, ny);
@@ -881,7 +869,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           }
         }
     }
-    const auto localOf = [&](std::size_t c) {
+    const auto W = static_cast<std::size_t>(hs.width);
+    const auto localOf = [&](std::size_t c) {  // a row-major cell of the map
       return local(static_cast<int>(c % W), static_cast<int>(c / W));
     };
     // The points of the owned cells within their height ranges, appended in input order.

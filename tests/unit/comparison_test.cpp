@@ -2,8 +2,8 @@
 // refinement, on height maps built by hand: a flat 60x60 map (7 mm cells) with 8 cm boxes.
 
 #include <gtest/gtest.h>
-#include <algorithm>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
