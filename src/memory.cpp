@@ -3,10 +3,31 @@
 #include "planesdf/memory.hpp"
 
 #include <cstdint>
+#include <limits>
 
 #if defined(__linux__)
 #include <sys/mman.h>
 #endif
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
+namespace planesdf {
+
+bool retainFreedMemory() noexcept {
+#if defined(__GLIBC__) && defined(M_TRIM_THRESHOLD) && defined(M_MMAP_THRESHOLD)
+  // The largest mmap threshold glibc accepts on 64-bit systems: half its 64 MiB heap size
+  // (requests above it are still mapped, and unmapped when freed).
+  constexpr int kMmapThreshold = sizeof(void*) == 8 ? 32 << 20 : 512 << 10;
+  const bool trim = mallopt(M_TRIM_THRESHOLD, std::numeric_limits<int>::max()) == 1;
+  const bool mmap_ok = mallopt(M_MMAP_THRESHOLD, kMmapThreshold) == 1;
+  return trim && mmap_ok;
+#else
+  return false;
+#endif
+}
+
+}  // namespace planesdf
 
 namespace planesdf::detail {
 
@@ -41,6 +62,36 @@ void* allocateLarge(std::size_t bytes) {
   }
 #endif
   return ::operator new(bytes);
+}
+
+HugePagePool::~HugePagePool() {
+  for (void* c : chunks_) freeLarge(c, kHugePageBytes);
+}
+
+void HugePagePool::fill(std::size_t chunks) {
+  // Each 4 KiB page written once: one fault per huge page where THP applies, else one per page,
+  // all of them here. Holds the lock throughout (take() waits; fill runs at start-up).
+  constexpr std::size_t kPage = 4096;
+  const std::lock_guard<std::mutex> lock(mutex_);
+  chunks_.reserve(chunks_.size() + chunks);  // no throw below once a chunk is mapped
+  for (std::size_t i = 0; i < chunks; ++i) {
+    auto* c = static_cast<unsigned char*>(allocateLarge(kHugePageBytes));
+    for (std::size_t o = 0; o < kHugePageBytes; o += kPage) c[o] = 0;
+    chunks_.push_back(c);
+  }
+}
+
+void* HugePagePool::take() noexcept {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  if (chunks_.empty()) return nullptr;
+  void* c = chunks_.back();
+  chunks_.pop_back();
+  return c;
+}
+
+std::size_t HugePagePool::bytes() const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  return chunks_.size() * kHugePageBytes;
 }
 
 void adviseHugePages(void* p, std::size_t bytes) noexcept {

@@ -89,6 +89,7 @@ struct BenchArgs {
   int mosd_pairs = 21;     ///< suite: mOSD pairs (the first n of pairs.tsv)
   std::string mosd_dir;    ///< suite: folder with pairs.tsv
   int octomap_stride = 8;  ///< suite: pixel stride of simulated frames into OctoMap
+  int reserve_mb = 128;    ///< block memory each tabletop map reserves before fusing (MiB)
 };
 int runBench(const BenchArgs& args);
 /// `bench --suite DIR` (cmd_bench_suite.cpp).

@@ -11,6 +11,7 @@
 
 #include "commands.hpp"
 #include "planesdf/error.hpp"
+#include "planesdf/memory.hpp"
 
 namespace {
 using namespace planesdf::cli;
@@ -46,6 +47,8 @@ void addPipelineOptions(CLI::App* app, PipelineArgs& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Freed grids stay in the process for the next frame or detection (see memory.hpp).
+  planesdf::retainFreedMemory();
   CLI::App app{
       "planesdf: PlaneSDF-based change detection between mapping sessions.\n"
       "INPUT, REFERENCE and CURRENT are .ply/.pcd scene clouds, TUM RGB-D folders, .psdf maps or "
@@ -118,6 +121,12 @@ int main(int argc, char** argv) {
   bench->add_option("--frames", bench_args.frames,
                     "Frames per session (default: the whole sequence; --suite: 12)");
   bench->add_option("--json", bench_args.json, "Write the figures as JSON (atomically)");
+  bench
+      ->add_option("--reserve-mb", bench_args.reserve_mb,
+                   "Block memory each tabletop map faults in before its frames "
+                   "(Map::reserveMemory; 0: none)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 65536));
   bench->add_option("--suite", bench_args.suite,
                     "Run the comparison suite and write OUT_DIR/comparison.md and .json");
   bench->add_option("--sim-pairs", bench_args.sim_pairs, "Suite: simulated pairs")

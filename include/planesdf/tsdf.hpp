@@ -164,6 +164,9 @@ class BlockSlabs {
   void clear() noexcept;
   /// Bytes the slabs hold (their whole capacity).
   std::size_t bytes() const { return bytes_; }
+  /// New slabs are whole chunks of `pool` while it has any (nullptr: none; the default).
+  void usePool(std::shared_ptr<HugePagePool> pool) { pool_ = std::move(pool); }
+  const std::shared_ptr<HugePagePool>& pool() const { return pool_; }
 
  private:
   struct Slab {
@@ -172,6 +175,7 @@ class BlockSlabs {
     std::size_t bytes;     ///< requested from allocateLarge
   };
   std::vector<Slab> slabs_;
+  std::shared_ptr<HugePagePool> pool_;
   std::size_t used_ = 0;   ///< blocks created in the last slab
   std::size_t total_ = 0;  ///< blocks created in all slabs
   std::size_t bytes_ = 0;
@@ -229,6 +233,12 @@ class TsdfVolume {
   TsdfBlock& allocateBlock(const Eigen::Vector3i& b, bool* created = nullptr);
   /// Makes room for `n` more blocks (storage, index, hash table) before allocating them.
   void reserveBlocks(std::size_t n);
+  /// Blocks allocated from now on live in chunks of `pool` (memory faulted in up front, see
+  /// Map::reserveMemory) while it has any; nullptr: fresh memory only (the default). A copy of
+  /// the volume does not share the pool.
+  void useHugePagePool(std::shared_ptr<detail::HugePagePool> pool) {
+    slabs_.usePool(std::move(pool));
+  }
   /// The slot of block `b` (its position in allocation order), or -1.
   std::ptrdiff_t blockSlot(const Eigen::Vector3i& b) const {
     if (!blockIndexInRange(b)) return -1;

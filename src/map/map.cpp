@@ -268,9 +268,30 @@ Eigen::Vector3d Map::up() const {
 }
 
 std::size_t Map::memoryBytes() const {
-  std::size_t b = points_.capacity() * sizeof(Eigen::Vector3f);
+  std::size_t b = points_.capacity() * sizeof(Eigen::Vector3f) + reservedBytes();
   for (const auto& p : planes_) b += p.volume.memoryBytes();
   return b;
+}
+
+std::size_t Map::reservedBytes() const {
+  return block_pool_ ? block_pool_->bytes() : 0;
+}
+
+void Map::reserveMemory(std::size_t block_bytes, std::size_t points) {
+  if (block_bytes > 0) {
+    if (!block_pool_) {
+      block_pool_ = std::make_shared<detail::HugePagePool>();
+      for (auto& ps : planes_) ps.volume.useHugePagePool(block_pool_);
+    }
+    block_pool_->fill((block_bytes + detail::kHugePageBytes - 1) / detail::kHugePageBytes);
+  }
+  if (points > points_.capacity()) {
+    growPoints(points_, points);
+    // Written once (then the size restored) so that its pages are faulted in now.
+    const std::size_t size = points_.size();
+    points_.resize(points_.capacity(), Eigen::Vector3f::Zero());
+    points_.resize(size);
+  }
 }
 
 void Map::syncPlanes(IntegrateStats& stats) {
@@ -280,6 +301,7 @@ void Map::syncPlanes(IntegrateStats& stats) {
       planes_[i].plane = tp[i];  // geometry may have been refined; the frame moves with it
     } else {
       planes_.push_back(PlaneSdf{tp[i], TsdfVolume(cfg_)});
+      if (block_pool_) planes_.back().volume.useHugePagePool(block_pool_);
       stats.new_planes.push_back(tp[i].id);
     }
   }

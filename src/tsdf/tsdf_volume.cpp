@@ -84,6 +84,7 @@ namespace detail {
 
 BlockSlabs::BlockSlabs(BlockSlabs&& other) noexcept
     : slabs_(std::exchange(other.slabs_, {})),
+      pool_(std::exchange(other.pool_, {})),
       used_(std::exchange(other.used_, 0)),
       total_(std::exchange(other.total_, 0)),
       bytes_(std::exchange(other.bytes_, 0)) {}
@@ -92,6 +93,7 @@ BlockSlabs& BlockSlabs::operator=(BlockSlabs&& other) noexcept {
   if (this != &other) {
     clear();
     slabs_ = std::exchange(other.slabs_, {});
+    pool_ = std::exchange(other.pool_, {});
     used_ = std::exchange(other.used_, 0);
     total_ = std::exchange(other.total_, 0);
     bytes_ = std::exchange(other.bytes_, 0);
@@ -106,15 +108,20 @@ BlockSlabs::~BlockSlabs() {
 TsdfBlock* BlockSlabs::create() {
   static_assert(std::is_trivially_destructible_v<TsdfBlock>, "slabs never run destructors");
   if (slabs_.empty() || used_ == slabs_.back().capacity) {
-    const std::size_t capacity = std::clamp(total_ / 4, kMinSlabBlocks, kMaxSlabBlocks);
-    // A full-size slab asks for the whole huge page (its tail is a few bytes).
-    const std::size_t bytes =
-        capacity == kMaxSlabBlocks ? kHugePageBytes : capacity * sizeof(TsdfBlock);
     if (slabs_.size() == slabs_.capacity())  // cannot throw after the allocation below
       slabs_.reserve(std::max<std::size_t>(8, 2 * slabs_.capacity()));
-    auto* memory = static_cast<TsdfBlock*>(allocateLarge(bytes));
-    slabs_.push_back({memory, capacity, bytes});
-    bytes_ += bytes;
+    // A reserved chunk (already faulted in) when the pool has one, else fresh memory.
+    void* chunk = pool_ ? pool_->take() : nullptr;
+    if (chunk != nullptr) {
+      slabs_.push_back({static_cast<TsdfBlock*>(chunk), kMaxSlabBlocks, kHugePageBytes});
+    } else {
+      const std::size_t capacity = std::clamp(total_ / 4, kMinSlabBlocks, kMaxSlabBlocks);
+      // A full-size slab asks for the whole huge page (its tail is a few bytes).
+      const std::size_t bytes =
+          capacity == kMaxSlabBlocks ? kHugePageBytes : capacity * sizeof(TsdfBlock);
+      slabs_.push_back({static_cast<TsdfBlock*>(allocateLarge(bytes)), capacity, bytes});
+    }
+    bytes_ += slabs_.back().bytes;
     used_ = 0;
   }
   TsdfBlock* b = new (slabs_.back().blocks + used_) TsdfBlock();

@@ -47,6 +47,35 @@ const Map& tableMap() {
   return map;
 }
 
+/// Fuses the table scene seen from `n` poses on a ring into both maps, frame by frame.
+void fuseRingIntoBoth(int n, Map& a, Map& b) {
+  const AnalyticScene scene = tableScene();
+  for (const Pose& T : test::ringPoses({0, 0, 0.75}, 0.9, 0.55, n)) {
+    const DepthFrame f = test::renderDepth(scene, Intrinsics{}, T);
+    a.integrate(f, T);
+    b.integrate(f, T);
+  }
+}
+
+/// Voxels of `a` whose sdf or weight differ in `b` (block by block index); a block count or
+/// a block missing in `b` counts every voxel of `a` as differing.
+std::size_t differingVoxels(const TsdfVolume& a, const TsdfVolume& b) {
+  if (a.numBlocks() != b.numBlocks()) return a.numVoxels() + 1;
+  std::size_t differing = 0;
+  for (std::size_t s = 0; s < a.numBlocks(); ++s) {
+    const TsdfBlock& ba = a.block(s);
+    const TsdfBlock* bb = b.findBlock(ba.index);
+    if (bb == nullptr) {
+      differing += ba.voxels.size();
+      continue;
+    }
+    for (std::size_t v = 0; v < ba.voxels.size(); ++v)
+      differing +=
+          ba.voxels[v].sdf != bb->voxels[v].sdf || ba.voxels[v].weight != bb->voxels[v].weight;
+  }
+  return differing;
+}
+
 const PlaneSdf* planeAtHeight(const Map& m, double z) {
   const PlaneSdf* found = nullptr;
   for (const auto& ps : m.planes())
@@ -249,33 +278,42 @@ TEST(Map, SameMapOnOneAndTwoThreads) {
   one.threads = 1;
   two.threads = 2;
   Map a{one}, b{two};
-  const AnalyticScene scene = tableScene();
-  for (const Pose& T : test::ringPoses({0, 0, 0.75}, 0.9, 0.55, 4)) {
-    const DepthFrame f = test::renderDepth(scene, Intrinsics{}, T);
-    a.integrate(f, T);
-    b.integrate(f, T);
-  }
+  fuseRingIntoBoth(4, a, b);
   ASSERT_EQ(a.planes().size(), 2u);
   ASSERT_EQ(b.planes().size(), 2u);
   for (std::size_t i = 0; i < 2; ++i) {
     const PlaneSdf &pa = a.planes()[i], &pb = b.planes()[i];
     EXPECT_EQ(pa.plane.normal, pb.plane.normal);
     EXPECT_EQ(pa.plane.offset, pb.plane.offset);
-    ASSERT_EQ(pa.volume.numBlocks(), pb.volume.numBlocks());
-    std::size_t differing = 0;
-    for (std::size_t s = 0; s < pa.volume.numBlocks(); ++s) {
-      const TsdfBlock& ba = pa.volume.block(s);
-      const std::ptrdiff_t t = pb.volume.blockSlot(ba.index);
-      ASSERT_GE(t, 0);
-      const TsdfBlock& bb = pb.volume.block(static_cast<std::size_t>(t));
-      for (std::size_t v = 0; v < ba.voxels.size(); ++v)
-        differing +=
-            ba.voxels[v].sdf != bb.voxels[v].sdf || ba.voxels[v].weight != bb.voxels[v].weight;
-    }
-    EXPECT_EQ(differing, 0u) << "plane " << i;
+    EXPECT_EQ(differingVoxels(pa.volume, pb.volume), 0u) << "plane " << i;
   }
   EXPECT_GT(a.points().size(), 1000u);
   EXPECT_EQ(a.points(), b.points());
+}
+
+TEST(Map, ReservedMemoryHoldsTheSameMapAndIsCounted) {
+  // Blocks go to the reserve first; the fused map is the same byte for byte, and memoryBytes
+  // counts what the reserve still holds.
+  Map plain{Config{}}, reserved{Config{}};
+  constexpr std::size_t kChunk = std::size_t{2} << 20;
+  reserved.reserveMemory(5 * kChunk - 100, 200000);  // rounded up to 5 chunks
+  EXPECT_EQ(reserved.reservedBytes(), 5 * kChunk);
+  EXPECT_EQ(plain.reservedBytes(), 0u);
+  EXPECT_GE(reserved.memoryBytes(), 5 * kChunk + 200000 * sizeof(Eigen::Vector3f));
+  EXPECT_TRUE(reserved.points().empty());
+  fuseRingIntoBoth(3, plain, reserved);
+  ASSERT_EQ(reserved.planes().size(), 2u);
+  ASSERT_EQ(plain.planes().size(), 2u);
+  // Two planes took a chunk each at least (their first blocks).
+  EXPECT_LE(reserved.reservedBytes(), 3 * kChunk);
+  for (std::size_t i = 0; i < 2; ++i)
+    EXPECT_EQ(differingVoxels(plain.planes()[i].volume, reserved.planes()[i].volume), 0u)
+        << "plane " << i;
+  EXPECT_EQ(plain.points(), reserved.points());
+  EXPECT_EQ(
+      reserved.memoryBytes() - reserved.reservedBytes() >=
+          reserved.planes()[0].volume.memoryBytes() + reserved.planes()[1].volume.memoryBytes(),
+      true);
 }
 
 TEST(Map, IntegrateReportsItsStageTimes) {

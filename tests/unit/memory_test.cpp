@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdint>
+#include <memory>
 #include <numeric>
 #include <set>
 #include <vector>
@@ -114,6 +115,87 @@ TEST(BlockSlabs, MemoryPerVoxelStaysWithinTwelveBytesAsAVolumeGrows) {
     EXPECT_GE(per_voxel, 8.0) << target << " blocks";
     EXPECT_LE(per_voxel, 12.0) << target << " blocks";
   }
+}
+
+TEST(HugePagePool, HandsOutEachFilledChunkOnceThenNothing) {
+  planesdf::detail::HugePagePool pool;
+  EXPECT_EQ(pool.bytes(), 0u);
+  EXPECT_EQ(pool.take(), nullptr);
+  pool.fill(2);
+  pool.fill(1);  // adds
+  EXPECT_EQ(pool.bytes(), 3 * kHugePageBytes);
+  std::set<void*> taken;
+  for (int i = 0; i < 3; ++i) {
+    void* c = pool.take();
+    ASSERT_NE(c, nullptr);
+#if defined(__linux__)
+    EXPECT_EQ(reinterpret_cast<std::uintptr_t>(c) % kHugePageBytes, 0u);
+#endif
+    auto* bytes = static_cast<unsigned char*>(c);
+    bytes[0] = 1;  // the whole chunk is usable
+    bytes[kHugePageBytes - 1] = 2;
+    taken.insert(c);
+  }
+  EXPECT_EQ(taken.size(), 3u);
+  EXPECT_EQ(pool.take(), nullptr);
+  EXPECT_EQ(pool.bytes(), 0u);
+  for (void* c : taken) planesdf::detail::freeLarge(c, kHugePageBytes);
+  pool.fill(1);  // freed by the pool's destructor (the sanitizer build checks)
+}
+
+TEST(HugePagePool, AVolumeTakesWholeChunksBeforeFreshMemory) {
+  auto pool = std::make_shared<planesdf::detail::HugePagePool>();
+  pool->fill(2);
+  TsdfVolume vol(0.01, 0.04);
+  vol.useHugePagePool(pool);
+  const std::size_t per_chunk = kHugePageBytes / sizeof(TsdfBlock);  // 509 blocks
+  const auto inChunk = [](const TsdfBlock* b, const TsdfBlock* first) {
+    const auto a = reinterpret_cast<std::uintptr_t>(b), f = reinterpret_cast<std::uintptr_t>(first);
+    return a >= f && a + sizeof(TsdfBlock) <= f + kHugePageBytes;
+  };
+  TsdfBlock& first = vol.allocateBlock(Eigen::Vector3i(0, 0, 0));
+  EXPECT_EQ(pool->bytes(), kHugePageBytes);  // the first block took a whole chunk
+  EXPECT_EQ(reinterpret_cast<std::uintptr_t>(&first) % kHugePageBytes, 0u);
+  const std::size_t n = 3 * per_chunk;  // two chunks, then fresh slabs
+  for (std::size_t i = 1; i < n; ++i) {
+    TsdfBlock& b =
+        vol.allocateBlock(Eigen::Vector3i(static_cast<int>(i % 97), static_cast<int>(i / 97), 1));
+    for (const auto& v : b.voxels) ASSERT_EQ(v.weight, 0.0f) << "block " << i;
+    b.voxels[0].sdf = static_cast<float>(i);
+    if (i < per_chunk) {
+      EXPECT_TRUE(inChunk(&b, &first)) << "block " << i;
+    } else if (i == per_chunk) {
+      EXPECT_FALSE(inChunk(&b, &first));
+    }
+  }
+  EXPECT_EQ(pool->bytes(), 0u);
+  EXPECT_EQ(vol.numBlocks(), n);
+  for (std::size_t i = 1; i < n; ++i)
+    ASSERT_EQ(vol.findBlock(Eigen::Vector3i(static_cast<int>(i % 97), static_cast<int>(i / 97), 1))
+                  ->voxels[0]
+                  .sdf,
+              static_cast<float>(i));
+  // A moved volume keeps using the pool; a copy does not share it.
+  pool->fill(1);
+  TsdfVolume moved = std::move(vol);
+  moved.allocateBlock(Eigen::Vector3i(-5, -5, -5));  // room in the last fresh slab
+  TsdfVolume copy = moved;
+  EXPECT_EQ(copy.numBlocks(), n + 1);
+  EXPECT_EQ(pool->bytes(), kHugePageBytes);
+}
+
+TEST(RetainFreedMemory, AppliesWithGlibc) {
+#if defined(__GLIBC__)
+  EXPECT_TRUE(planesdf::retainFreedMemory());
+  // Memory keeps working: a large block freed and requested again holds what is written.
+  for (int round = 0; round < 2; ++round) {
+    std::vector<std::uint32_t> v(8u << 20);
+    std::iota(v.begin(), v.end(), 0u);
+    EXPECT_EQ(v[(8u << 20) - 1], (8u << 20) - 1);
+  }
+#else
+  EXPECT_FALSE(planesdf::retainFreedMemory());
+#endif
 }
 
 }  // namespace
