@@ -26,7 +26,8 @@ namespace planesdf {
 /// call. This sets glibc malloc's trim threshold beyond reach and its mmap threshold to the
 /// largest the heap can serve (32 MiB), as real-time pipelines do at start-up; the process
 /// then keeps its peak heap. Call it once, before the threads that allocate start; the
-/// planesdf command line calls it. Returns false, changing nothing, on other C libraries.
+/// planesdf command line calls it. Returns false where the allocator does not take the settings
+/// (other C libraries; AddressSanitizer's allocator).
 bool retainFreedMemory() noexcept;
 
 }  // namespace planesdf
