@@ -7,6 +7,7 @@
 
 #if defined(__linux__)
 #include <sys/mman.h>
+#include <unistd.h>
 #endif
 #if defined(__GLIBC__)
 #include <malloc.h>
@@ -92,6 +93,16 @@ void* HugePagePool::take() noexcept {
 std::size_t HugePagePool::bytes() const {
   const std::lock_guard<std::mutex> lock(mutex_);
   return chunks_.size() * kHugePageBytes;
+}
+
+std::size_t physicalMemoryBytes() noexcept {
+#if defined(__linux__)
+  const long pages = sysconf(_SC_PHYS_PAGES);
+  const long page = sysconf(_SC_PAGESIZE);
+  if (pages > 0 && page > 0)
+    return static_cast<std::size_t>(pages) * static_cast<std::size_t>(page);
+#endif
+  return 0;
 }
 
 void adviseHugePages(void* p, std::size_t bytes) noexcept {

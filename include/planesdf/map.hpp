@@ -151,7 +151,8 @@ class Map {
   /// cost milliseconds per frame (about 3 ms per 2 MiB the first time the host backs it; the
   /// bench frames allocate up to ~5 MiB of blocks per frame). Blocks use the reserve before
   /// any fresh memory; the unused reserve is counted by memoryBytes(). Can be called again to
-  /// add more. Throws std::bad_alloc when the memory is not available.
+  /// add more. Throws planesdf::Error, reserving nothing, when the request exceeds the machine's
+  /// physical memory, and std::bad_alloc when the memory cannot be mapped.
   void reserveMemory(std::size_t block_bytes, std::size_t points = 0);
   /// Bytes of the block reserve not used yet.
   std::size_t reservedBytes() const;

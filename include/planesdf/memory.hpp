@@ -43,6 +43,9 @@ void* allocateLarge(std::size_t bytes);
 /// Releases memory from allocateLarge(bytes) (the same `bytes`). p may be nullptr.
 void freeLarge(void* p, std::size_t bytes) noexcept;
 
+/// The machine's physical memory in bytes, or 0 when unknown.
+std::size_t physicalMemoryBytes() noexcept;
+
 /// Advises the whole 2 MiB pages inside [p, p + bytes) for transparent huge pages (memory the
 /// caller owns and has not touched yet, e.g. a freshly reserved vector); a no-op elsewhere.
 void adviseHugePages(void* p, std::size_t bytes) noexcept;

@@ -278,6 +278,14 @@ std::size_t Map::reservedBytes() const {
 }
 
 void Map::reserveMemory(std::size_t block_bytes, std::size_t points) {
+  // Touching more than the machine holds would end in the kernel's OOM killer, not bad_alloc.
+  const std::size_t physical = detail::physicalMemoryBytes();
+  const double wanted =
+      static_cast<double>(block_bytes) + static_cast<double>(points) * sizeof(Eigen::Vector3f);
+  if (physical > 0 && wanted > static_cast<double>(physical))
+    throw Error("", "Map::reserveMemory: " + std::to_string(block_bytes) + " bytes of blocks and " +
+                        std::to_string(points) + " points exceed this machine's " +
+                        std::to_string(physical) + " bytes of memory");
   if (block_bytes > 0) {
     if (!block_pool_) {
       block_pool_ = std::make_shared<detail::HugePagePool>();

@@ -310,10 +310,19 @@ TEST(Map, ReservedMemoryHoldsTheSameMapAndIsCounted) {
     EXPECT_EQ(differingVoxels(plain.planes()[i].volume, reserved.planes()[i].volume), 0u)
         << "plane " << i;
   EXPECT_EQ(plain.points(), reserved.points());
-  EXPECT_EQ(
-      reserved.memoryBytes() - reserved.reservedBytes() >=
-          reserved.planes()[0].volume.memoryBytes() + reserved.planes()[1].volume.memoryBytes(),
-      true);
+  EXPECT_GE(reserved.memoryBytes() - reserved.reservedBytes(),
+            reserved.planes()[0].volume.memoryBytes() + reserved.planes()[1].volume.memoryBytes());
+  // A request beyond the machine's memory is an error that reserves nothing (not a crash of
+  // the process by the kernel's OOM killer).
+  const std::size_t before = reserved.reservedBytes();
+  try {
+    reserved.reserveMemory(std::size_t{1} << 60);
+    ADD_FAILURE() << "an exabyte reserve was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("exceed this machine's"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(reserved.reserveMemory(0, std::size_t{1} << 58), Error);
+  EXPECT_EQ(reserved.reservedBytes(), before);
 }
 
 TEST(Map, IntegrateReportsItsStageTimes) {
