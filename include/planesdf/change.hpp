@@ -270,19 +270,42 @@ std::vector<CandidateChange> compareMatchedPair(
     const PlaneMaps& source_maps, const PlaneMaps& target_maps, RefinedTransforms& refined,
     const Config& cfg, const DetectOptions& options, PlanePairResult* result);
 
-/// The localisation error between the sessions, as one world motion (rotation about the
-/// vertical, horizontal shift): the in-plane refinement of the horizontal forward pair (reference
-/// to current) that removes the most height mismatches, expressed in the world; identity when no
-/// horizontal pair refines. `maps(is_reference, plane_id)` gives a plane's maps. Every forward
-/// pair then starts from corrected(match, current, correction) before its own refinement: the
-/// floor or a side plane, with little in-plane structure of their own, get the table's
+/// The localisation error between the sessions as one world motion (rotation about the vertical,
+/// horizontal shift); see sessionCorrection.
+struct SessionCorrection {
+  /// rigid: the motion taking reference-world points to current-world points. Otherwise the
+  /// motion applied on the current side after each pair's plane alignment.
+  Pose motion = Pose::Identity();
+  /// True when walls fixed the rotation (design.md, "Session drift"): every pair's in-plane
+  /// transform then comes from `motion` alone.
+  bool rigid = false;
+  bool operator==(const SessionCorrection& o) const {
+    return rigid == o.rigid && motion.matrix() == o.motion.matrix();
+  }
+};
+
+/// The localisation error between the sessions. The in-plane refinement of the horizontal forward
+/// pair (reference to current) that removes the most height mismatches gives a motion in the
+/// world. When matched vertical planes of at least kDriftMinWallArea agree on a rotation about
+/// the vertical, that rotation (their weighted median) is the drift's, the walls' offsets give its
+/// shift across them and the horizontal refinement the rest (a 1 degree error moves a wall 3 m
+/// away by 5 cm, more than a table's refinement can tell); the result is rigid. Identity when
+/// neither applies. `maps(is_reference, plane_id)` gives a plane's maps. Every forward pair then
+/// starts from corrected(match, reference, current, correction) before its own refinement: the
+/// floor or a side plane, with little in-plane structure of their own, get the drift's
 /// alignment.
-Pose sessionCorrection(const Map& reference, const Map& current,
-                       const std::vector<PlaneMatch>& forward_matches,
-                       const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg);
-/// `match` (reference plane -> current plane) with the world correction applied on the current
-/// side.
-PlaneMatch corrected(PlaneMatch match, const Map& current, const Pose& correction);
+SessionCorrection sessionCorrection(const Map& reference, const Map& current,
+                                    const std::vector<PlaneMatch>& forward_matches,
+                                    const std::function<const PlaneMaps&(bool, int)>& maps,
+                                    const Config& cfg);
+/// Matched vertical planes smaller than this (m², the smaller extent) do not vote on the drift.
+inline constexpr double kDriftMinWallArea = 0.5;
+
+/// `match` (reference plane -> current plane) with the correction applied: a rigid correction's
+/// motion carried into the two plane frames (its in-plane part), otherwise the motion applied on
+/// the current side after the plane alignment.
+PlaneMatch corrected(PlaneMatch match, const Map& reference, const Map& current,
+                     const SessionCorrection& correction);
 
 /// True when the two lists share a column.
 bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eigen::Vector2i>& b);

@@ -25,8 +25,14 @@ struct Config {
   int ransac_max_planes_per_frame = 6;
   /// Merge a frame plane into a global plane when normals agree within this angle ...
   double plane_merge_angle_deg = 10.0;
-  /// ... and offsets agree within this distance (m).
+  /// ... and offsets agree within this distance (m) ...
   double plane_merge_offset = 0.05;
+  /// ... and, when the offsets differ by more than this (m), the frame plane's inliers come within
+  /// about 10 cm of the global plane's: two desks a few cm apart in height are two planes (one
+  /// plane fitted to both would tilt and raise one desk's top into the other's band), while the
+  /// floor seen in separate patches stays one plane. The default is RANSAC's inlier distance:
+  /// closer surfaces are one surface to the per-frame fit anyway.
+  double plane_merge_coplanar = 0.015;
   /// ... and their in-plane extents overlap or are at most this far apart (m). Large by default:
   /// a PlaneSDF fuses the whole (unbounded) band of its plane, so two coplanar planes would hold
   /// duplicate volumes; coplanar patches (a floor seen around a table) are one plane.

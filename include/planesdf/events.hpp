@@ -57,7 +57,7 @@ class ChangeDetector {
     std::uint64_t current_revision = 0;
     std::vector<CandidateChange> candidates;
     Pose T_target_source = Pose::Identity();  ///< the transform the comparison used
-    Pose correction = Pose::Identity();       ///< the session correction it started from
+    SessionCorrection correction;             ///< the session correction it started from
   };
   struct CurrentMaps {
     PlaneMaps maps;
@@ -73,9 +73,9 @@ class ChangeDetector {
   /// (reference→current?, source id, target id) -> candidates
   std::map<std::tuple<bool, int, int>, PairCache> pairs_;
   std::map<int, ChangeEvent> active_;  ///< by id
-  /// sessionCorrection, and the (current plane id, revision) of the horizontal forward pairs it
-  /// was estimated from (recomputed when they change).
-  Pose correction_ = Pose::Identity();
+  /// sessionCorrection, and the (current plane id, revision) of the forward pairs it was
+  /// estimated from (recomputed when they change).
+  SessionCorrection correction_;
   std::vector<std::pair<int, std::uint64_t>> correction_key_;
   int next_id_ = 1;
 };

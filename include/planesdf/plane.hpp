@@ -17,6 +17,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <optional>
+#include <unordered_set>
 #include <vector>
 
 #include "planesdf/config.hpp"
@@ -204,7 +205,17 @@ class PlaneTracker {
     std::size_t since_refine = 0;  ///< inliers gained since the last refinement
     std::uint64_t rng_state = 0;   ///< deterministic per-plane random stream
     int refinements = 0;
+    /// World cells (kOccupancyCell) that sampled inliers fell in: where the plane is, for
+    /// merging only spatially connected planes (Config::plane_merge_coplanar).
+    std::unordered_set<std::uint64_t> cells;
   };
+
+  /// True when a sampled inlier of `sample` lies in or next to a cell of `track`'s plane (a
+  /// restored plane without cells: its extent box within one cell of theirs).
+  bool touches(const Track& track, const Plane& plane, const std::vector<Eigen::Vector3f>& points,
+               const std::vector<std::uint32_t>& sample) const;
+  void occupy(Track& track, const std::vector<Eigen::Vector3f>& points,
+              const std::vector<std::uint32_t>& inliers) const;
 
   int findMatch(const PlaneObservation& obs, const std::vector<Eigen::Vector3f>& points,
                 Eigen::AlignedBox2d& obs_extent) const;

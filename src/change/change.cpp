@@ -19,6 +19,7 @@
 #include <tuple>
 #include <utility>
 
+#include "../numeric.hpp"
 #include "../parallel.hpp"
 #include "planesdf/error.hpp"
 
@@ -554,18 +555,50 @@ CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
   return cp;
 }
 
+/// What stands on a horizontal plane of the map is that plane's object, not this plane's: cells
+/// whose surface lies in the band of a horizontal plane `supports` (within its extent grown by
+/// cfg.support_margin) that is nearer below the surface than this plane, or that is this
+/// plane's when this one is vertical (objects rest on horizontal surfaces: a shelf's boards and
+/// what stands on them in the band of the wall behind, a box on the floor by a wall, a desk and
+/// its objects a few cm above a lower desk's plane), are unknown here. design.md, "Ownership".
+void leaveToSupports(const Plane& plane, const std::vector<const Plane*>& supports,
+                     const Config& cfg, HeightMap& hm) {
+  if (supports.empty()) return;
+  const bool vertical = plane.orientation == Plane::Orientation::Vertical;
+  for (int y = 0; y < hm.height; ++y)
+    for (int x = 0; x < hm.width; ++x) {
+      const float h = hm.at(x, y);
+      if (!(h > cfg.h_obj)) continue;
+      const Eigen::Vector2d uv = hm.cellCenter(x, y);
+      const Eigen::Vector3d p = plane.toWorld(Eigen::Vector3d(uv.x(), uv.y(), h));
+      for (const Plane* q : supports) {
+        const double sd = q->signedDistance(p);
+        if (sd < -kOtherPlaneDistance || sd > cfg.fuse_band) continue;
+        if (!vertical && !(sd < h - kOtherPlaneDistance)) continue;  // not nearer than this one
+        const Eigen::Vector2d l = q->toLocal(p).head<2>();
+        const Eigen::AlignedBox2d ext(q->extent.min().array() - cfg.support_margin,
+                                      q->extent.max().array() + cfg.support_margin);
+        if (ext.contains(l)) {
+          hm.at(x, y) = kUnobserved;
+          break;
+        }
+      }
+    }
+}
+
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
                            const Config& cfg, const std::vector<Eigen::Vector3f>* points) {
   PlaneMaps m;
   m.heights = computeHeightMap(plane.volume, cfg);
   // Surfaces of the other, non-parallel planes of the map (a wall in the table's band, the
   // table in a wall's band) are structure, not objects: unknown on this plane.
-  std::vector<const Plane*> others;
-  for (const PlaneSdf& q : map_planes)
-    if (q.plane.id != plane.plane.id &&
-        std::abs(q.plane.normal.dot(plane.plane.normal)) < kParallelPlaneCos &&
-        !q.plane.extent.isEmpty())
+  std::vector<const Plane*> others, supports;
+  for (const PlaneSdf& q : map_planes) {
+    if (q.plane.id == plane.plane.id || q.plane.extent.isEmpty()) continue;
+    if (std::abs(q.plane.normal.dot(plane.plane.normal)) < kParallelPlaneCos)
       others.push_back(&q.plane);
+    if (q.plane.orientation == Plane::Orientation::Horizontal) supports.push_back(&q.plane);
+  }
   HeightMap& hm = m.heights;
   // Support: the band is unbounded, but only what stands on the plane is its object; beyond its
   // extent (a table's band reaching the walls, a shelf across the room) it is unknown.
@@ -576,6 +609,7 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
       for (int x = 0; x < hm.width; ++x)
         if (!support.contains(hm.cellCenter(x, y))) hm.at(x, y) = kUnobserved;
   }
+  leaveToSupports(plane.plane, supports, cfg, hm);
   if (!others.empty())
     for (int y = 0; y < hm.height; ++y)
       for (int x = 0; x < hm.width; ++x) {
@@ -1072,9 +1106,13 @@ std::vector<CandidateChange> compareMatchedPair(
   return out;
 }
 
-Pose sessionCorrection(const Map& reference, const Map& current,
-                       const std::vector<PlaneMatch>& forward_matches,
-                       const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg) {
+namespace {
+
+/// The horizontal forward pairs' best in-plane refinement as a world motion applied after the
+/// plane alignment (identity when none refines), and the anchor of the plane it came from.
+std::pair<Pose, Eigen::Vector3d> horizontalCorrection(
+    const Map& reference, const Map& current, const std::vector<PlaneMatch>& forward_matches,
+    const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg) {
   // The horizontal pairs, refined independently (in parallel; the maps are computed first, in
   // order, since `maps` may compute them lazily), then the first with the largest gain wins.
   std::vector<std::size_t> horizontal;
@@ -1099,6 +1137,7 @@ Pose sessionCorrection(const Map& reference, const Map& current,
                          cfg);
   });
   Pose correction = Pose::Identity();
+  Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
   int best_gain = 0;
   for (std::size_t k = 0; k < horizontal.size(); ++k) {
     const PlaneMatch& m = forward_matches[horizontal[k]];
@@ -1106,15 +1145,117 @@ Pose sessionCorrection(const Map& reference, const Map& current,
     if (!r[k].applied || gain <= best_gain) continue;
     best_gain = gain;
     // T = D * T0 in target-local coordinates: C = F_t * D * F_t^-1 in the world.
-    const Pose Ft = current.planes()[static_cast<std::size_t>(m.target_id)].plane.frame();
+    const Plane& target = current.planes()[static_cast<std::size_t>(m.target_id)].plane;
+    const Pose Ft = target.frame();
     correction = Ft * (T[k] * m.T_target_source_local.inverse()) * Ft.inverse();
+    anchor = planeAnchor(target);
   }
-  return correction;
+  return {correction, anchor};
 }
 
-PlaneMatch corrected(PlaneMatch match, const Map& current, const Pose& correction) {
+/// Signed angle (rad) about `up` from the horizontal part of `a` to that of `b`.
+double yawBetween(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& up) {
+  const Eigen::Vector3d ha = a - a.dot(up) * up, hb = b - b.dot(up) * up;
+  return std::atan2(ha.cross(hb).dot(up), ha.dot(hb));
+}
+
+struct WallVote {
+  double yaw = 0.0;
+  double weight = 0.0;
+  const Plane* source = nullptr;
+  const Plane* target = nullptr;
+};
+
+/// The matched vertical planes large enough to vote on the drift.
+std::vector<WallVote> wallVotes(const Map& reference, const Map& current,
+                                const std::vector<PlaneMatch>& forward_matches,
+                                const Eigen::Vector3d& up) {
+  std::vector<WallVote> votes;
+  for (const PlaneMatch& m : forward_matches) {
+    const Plane& s = reference.planes()[static_cast<std::size_t>(m.source_id)].plane;
+    const Plane& t = current.planes()[static_cast<std::size_t>(m.target_id)].plane;
+    if (s.orientation != Plane::Orientation::Vertical ||
+        t.orientation != Plane::Orientation::Vertical || s.extent.isEmpty() || t.extent.isEmpty())
+      continue;
+    const double area = std::min(s.extent.volume(), t.extent.volume());
+    if (area < kDriftMinWallArea) continue;
+    votes.push_back({yawBetween(s.normal, t.normal, up), area, &s, &t});
+  }
+  return votes;
+}
+
+double weightedMedianYaw(std::vector<WallVote> votes) {
+  std::sort(votes.begin(), votes.end(),
+            [](const WallVote& a, const WallVote& b) { return a.yaw < b.yaw; });
+  double total = 0.0;
+  for (const WallVote& v : votes) total += v.weight;
+  double acc = 0.0;
+  for (const WallVote& v : votes) {
+    acc += v.weight;
+    if (acc >= 0.5 * total) return v.yaw;
+  }
+  return votes.back().yaw;
+}
+
+}  // namespace
+
+SessionCorrection sessionCorrection(const Map& reference, const Map& current,
+                                    const std::vector<PlaneMatch>& forward_matches,
+                                    const std::function<const PlaneMaps&(bool, int)>& maps,
+                                    const Config& cfg) {
+  const auto [horizontal, anchor] =
+      horizontalCorrection(reference, current, forward_matches, maps, cfg);
+  const Eigen::Vector3d up = current.up().normalized();
+  const std::vector<WallVote> votes = wallVotes(reference, current, forward_matches, up);
+  if (votes.empty()) return {horizontal, false};
+  // Rotation: the walls' weighted median; shift: least squares of the agreeing walls' offsets
+  // (n_t · (R p_s + t) + d_t = 0 for a point p_s of the source wall), in the horizontal plane.
+  const double yaw = weightedMedianYaw(votes);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(yaw, up).toRotationMatrix();
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  for (const WallVote& v : votes) {
+    if (std::abs(v.yaw - yaw) > detail::kDegToRad) continue;  // another wall pairing
+    const Eigen::Vector3d n = (v.target->normal - v.target->normal.dot(up) * up).normalized();
+    const double d = v.target->offset / v.target->normal.norm();
+    const double rhs = -(v.target->normal.normalized().dot(R * planeAnchor(*v.source)) + d);
+    A += v.weight * n * n.transpose();
+    b += v.weight * rhs * n;
+  }
+  // Directions the walls constrain (eigenvalues of A) take their shift; the others the shift
+  // the horizontal refinement gives at its plane's anchor.
+  const Eigen::Vector3d fallback = horizontal * anchor - R * anchor;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(A);
+  Eigen::Vector3d t = Eigen::Vector3d::Zero();
+  const double top = eig.eigenvalues().maxCoeff();
+  for (int i = 0; i < 3; ++i) {
+    const Eigen::Vector3d e = eig.eigenvectors().col(i);
+    const double lambda = eig.eigenvalues()(i);
+    t += (lambda > 0.05 * top && lambda > 0.0 ? e.dot(b) / lambda : e.dot(fallback)) * e;
+  }
+  t -= t.dot(up) * up;  // heights come from each pair's own plane alignment
+  Pose motion = Pose::Identity();
+  motion.linear() = R;
+  motion.translation() = t;
+  return {motion, true};
+}
+
+PlaneMatch corrected(PlaneMatch match, const Map& reference, const Map& current,
+                     const SessionCorrection& correction) {
   const Pose Ft = current.planes()[static_cast<std::size_t>(match.target_id)].plane.frame();
-  match.T_target_source_local = Ft.inverse() * correction * Ft * match.T_target_source_local;
+  if (!correction.rigid) {
+    match.T_target_source_local =
+        Ft.inverse() * correction.motion * Ft * match.T_target_source_local;
+    return match;
+  }
+  // The motion in the plane frames, kept as a yaw and an in-plane shift (as
+  // relativePlaneTransform: heights come from the plane alignment).
+  const Pose Fs = reference.planes()[static_cast<std::size_t>(match.source_id)].plane.frame();
+  Pose T = Ft.inverse() * correction.motion * Fs;
+  const double yaw = std::atan2(T.linear()(1, 0), T.linear()(0, 0));
+  T.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation().z() = 0.0;
+  match.T_target_source_local = T;
   return match;
 }
 
@@ -1189,18 +1330,18 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
   }
   set.maps_ms = msSince(tp);
   tp = std::chrono::steady_clock::now();
-  const Pose correction =
+  const SessionCorrection correction =
       cfg.refine_inplane
           ? sessionCorrection(
                 reference, current, forward_matches,
                 [&](bool ref, int id) -> const PlaneMaps& { return mapsOf(ref, id); }, cfg)
-          : Pose::Identity();
+          : SessionCorrection{};
   set.correction_ms = msSince(tp);
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
     tp = std::chrono::steady_clock::now();
     std::vector<PlaneMatch> matches = forward ? forward_matches : backward_matches;
     if (forward)
-      for (PlaneMatch& m : matches) m = corrected(m, current, correction);
+      for (PlaneMatch& m : matches) m = corrected(m, reference, current, correction);
     // The pairs of one direction are independent: in parallel, each with its own share of the
     // refined transforms, merged in pair order.
     std::vector<PlanePairResult> results(matches.size());

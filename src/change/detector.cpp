@@ -74,15 +74,14 @@ UpdateStats ChangeDetector::update(const Map& current) {
   };
 
   // The session-wide localisation correction (see sessionCorrection), re-estimated only when a
-  // horizontal current plane it depends on changed.
+  // current plane it depends on changed.
   const std::vector<PlaneMatch> forward_matches =
       uniqueMatches(registerPlanes(reference_, current, cfg_));
   if (cfg_.refine_inplane) {
     std::vector<std::pair<int, std::uint64_t>> key;
     for (const PlaneMatch& m : forward_matches) {
       const PlaneSdf& p = cp[static_cast<std::size_t>(m.target_id)];
-      if (p.plane.orientation == Plane::Orientation::Horizontal)
-        key.emplace_back(m.target_id, p.volume.revision());
+      key.emplace_back(m.target_id, p.volume.revision());
     }
     key.emplace_back(-1, cp.size());
     if (key != correction_key_) {
@@ -102,7 +101,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
     const Map& src = forward ? static_cast<const Map&>(reference_) : current;
     const Map& tgt = forward ? current : static_cast<const Map&>(reference_);
     for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg_))) {
-      if (forward) m = corrected(m, current, correction_);
+      if (forward) m = corrected(m, reference_, current, correction_);
       const int ref_id = forward ? m.source_id : m.target_id;
       const int cur_id = forward ? m.target_id : m.source_id;
       const std::uint64_t rev = cp[static_cast<std::size_t>(cur_id)].volume.revision();
@@ -110,8 +109,8 @@ UpdateStats ChangeDetector::update(const Map& current) {
       const auto it = pairs_.find(key);
       const auto maps_it = current_maps_.find(cur_id);
       if (it != pairs_.end() && it->second.current_revision == rev &&
-          it->second.correction.matrix() == correction_.matrix() &&
-          maps_it != current_maps_.end() && maps_it->second.num_planes == cp.size()) {
+          it->second.correction == correction_ && maps_it != current_maps_.end() &&
+          maps_it->second.num_planes == cp.size()) {
         ++stats.pairs_reused;
         next[key] = it->second;
         if (forward) refined[{ref_id, cur_id}] = it->second.T_target_source;

@@ -14,6 +14,20 @@ namespace {
 
 constexpr double kPi = 3.14159265358979323846;
 constexpr std::size_t kMatchSample = 1000;  // inliers projected to test extent overlap
+/// Cell size (m) of a plane's occupancy (Track::cells); neighbouring cells are connected, so
+/// patches up to one to two cells apart are one region.
+constexpr double kOccupancyCell = 0.10;
+constexpr std::size_t kOccupancySample = 2000;  // inliers per observation marking cells
+
+std::uint64_t occupancyKey(const Eigen::Vector3f& p, int dx = 0, int dy = 0, int dz = 0) {
+  const auto axis = [](float v, int d) {
+    return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v / kOccupancyCell)) +
+                                      d + (1 << 20)) &
+           0x1fffff;
+  };
+  return axis(p.x(), dx) | axis(p.y(), dy) << 21 | axis(p.z(), dz) << 42;
+}
+
 /// A plane is refined again once it gained this fraction of the inliers it had seen at its
 /// last refinement (and cfg.refine_min_new_inliers): O(log n) refinements over n inliers.
 constexpr double kRefineGrowth = 0.5;
@@ -93,6 +107,9 @@ int PlaneTracker::findMatch(const PlaneObservation& obs, const std::vector<Eigen
     if (boxGap(detail::extentOf(g, points, sample), g.extent) > cfg_.plane_merge_extent_gap) {
       continue;
     }
+    if (dist > cfg_.plane_merge_coplanar &&
+        !touches(tracks_[static_cast<std::size_t>(g.id)], g, points, sample))
+      continue;
     best = g.id;
     best_dist = dist;
   }
@@ -113,6 +130,7 @@ int PlaneTracker::addPlane(const PlaneObservation& obs,
   tracks_.push_back(std::move(track));
   Track& t = tracks_.back();
   offerToReservoir(t, points, obs.inliers);
+  occupy(t, points, obs.inliers);
   t.since_refine = obs.inliers.size();
   maybeRefine(id);
   return id;
@@ -126,8 +144,31 @@ void PlaneTracker::absorb(int id, const PlaneObservation& obs,
   plane.support += obs.inliers.size();
   plane.extent.extend(obs_extent);
   offerToReservoir(track, points, obs.inliers);
+  occupy(track, points, obs.inliers);
   track.since_refine += obs.inliers.size();
   maybeRefine(id);
+}
+
+bool PlaneTracker::touches(const Track& track, const Plane& plane,
+                           const std::vector<Eigen::Vector3f>& points,
+                           const std::vector<std::uint32_t>& sample) const {
+  if (track.cells.empty())
+    return boxGap(detail::extentOf(plane, points, sample), plane.extent) <= kOccupancyCell;
+  for (const std::uint32_t i : sample) {
+    const Eigen::Vector3f& p = points[i];
+    if (!p.allFinite()) continue;
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx)
+          if (track.cells.count(occupancyKey(p, dx, dy, dz))) return true;
+  }
+  return false;
+}
+
+void PlaneTracker::occupy(Track& track, const std::vector<Eigen::Vector3f>& points,
+                          const std::vector<std::uint32_t>& inliers) const {
+  for (const std::uint32_t i : detail::evenSubsample(inliers, kOccupancySample))
+    if (points[i].allFinite()) track.cells.insert(occupancyKey(points[i]));
 }
 
 void PlaneTracker::offerToReservoir(Track& track, const std::vector<Eigen::Vector3f>& points,

@@ -130,11 +130,26 @@ double footprintRadius(const Vector3d& size) {
   return 0.5 * std::hypot(size.x(), size.y());
 }
 
+/// A rectangle of a support plane (its coordinates) that no footprint may touch: the floor under
+/// a table or in front of a shelf.
+struct KeepOut {
+  Vector2d center = Vector2d::Zero();
+  Vector2d half = Vector2d::Zero();
+  double yaw_rad = 0.0;
+
+  /// Distance from `xy` to the rectangle (negative inside).
+  double distance(const Vector2d& xy) const {
+    const Vector2d d = (Eigen::Rotation2Dd(-yaw_rad) * (xy - center)).cwiseAbs() - half;
+    return d.cwiseMax(0.0).norm() + std::min(d.maxCoeff(), 0.0);
+  }
+};
+
 /// Where objects may go on a support plane (in its frame), and how.
 struct Spot {
   SupportPlane plane;
   Eigen::AlignedBox2d region;  ///< allowed base centres before the footprint margins
   bool hung = false;           ///< wall: upright objects, no yaw
+  std::vector<KeepOut> keep_out;
 };
 
 class Builder {
@@ -142,13 +157,15 @@ class Builder {
   Builder(Scene& scene, Random& random, std::string label)
       : scene_(scene), r_(random), label_(std::move(label)) {}
 
-  void addSpot(const std::string& support, std::optional<Eigen::AlignedBox2d> region = {}) {
+  void addSpot(const std::string& support, std::optional<Eigen::AlignedBox2d> region = {},
+               std::vector<KeepOut> keep_out = {}) {
     for (const SupportPlane& p : supportPlanes(scene_))
       if (p.name == support) {
         Spot s;
         s.plane = p;
         s.region = region ? *region : Eigen::AlignedBox2d(-p.half_extent, p.half_extent);
         s.hung = isWall(support);
+        s.keep_out = std::move(keep_out);
         spots_.push_back(s);
         return;
       }
@@ -173,6 +190,8 @@ class Builder {
     const Vector2d lo = s.region.min().array() + radius + kEdge;
     const Vector2d hi = s.region.max().array() - radius - kEdge;
     if ((xy.array() < lo.array()).any() || (xy.array() > hi.array()).any()) return false;
+    for (const KeepOut& k : s.keep_out)
+      if (k.distance(xy) < radius + kGap) return false;
     for (const Object& o : objects) {
       if (o.support != s.plane.name || skip.count(o.id)) continue;
       if ((planeXY(s, o) - xy).norm() < radius + footprintRadius(o.size) + kGap) return false;
@@ -492,36 +511,129 @@ Scene makeTabletop(std::uint32_t seed, const PresetOptions& opt) {
   return s;
 }
 
-Scene makeRoom(std::uint32_t seed, const PresetOptions& opt) {
-  Random r(seed);
-  Scene s;
-  s.name = "room";
-  s.seed = seed;
-  const int n_tables = r.integer(1, 3);
-  const double X = std::max(4.5, 2.5 * (n_tables - 1) + 3.6), Y = 5.0;
+/// A table's or shelf's footprint on the floor, as a keep-out rectangle grown by `margin`.
+KeepOut footprint(const Vector2d& center, double yaw_deg, const Vector2d& size, double margin) {
+  return {center, 0.5 * size + Vector2d::Constant(margin), detail::deg2rad(yaw_deg)};
+}
+
+/// Table heights of a room: the first a desk; each further one, half the time, 3 to 6 cm from an
+/// earlier one (two desks whose planes must stay apart), else anything from a coffee table to a
+/// desk.
+std::vector<double> tableHeights(Random& r, int n) {
+  std::vector<double> h = {r.uniform(0.70, 0.78)};
+  while (static_cast<int>(h.size()) < n) {
+    if (r.integer(0, 1) == 0) {
+      const double base = h[static_cast<std::size_t>(r.integer(0, static_cast<int>(h.size()) - 1))];
+      const double step = r.uniform(0.03, 0.06);
+      h.push_back(base + step > 0.82 ? base - step : base + step);
+    } else {
+      h.push_back(r.uniform(0.45, 0.80));
+    }
+  }
+  return h;
+}
+
+/// A shelf against wall `wall` (0: +y, 1: -y, 2: -x), its open front toward the room.
+Shelf roomShelf(Random& r, double X, double Y, int wall) {
+  Shelf sh;
+  sh.id = 1;
+  sh.size = Vector3d(r.uniform(0.8, 1.1), r.uniform(0.30, 0.36), r.uniform(1.40, 1.85));
+  sh.boards = r.integer(3, 5);
+  const double w = sh.size.x(), d = sh.size.y();
+  if (wall == 2) {
+    sh.yaw_deg = 90.0;
+    sh.center =
+        Vector2d(-X / 2 + d / 2 + 0.005, r.uniform(-Y / 2 + w / 2 + 0.3, Y / 2 - w / 2 - 0.3));
+  } else {
+    sh.yaw_deg = wall == 0 ? 0.0 : 180.0;
+    const double y = (Y / 2 - d / 2 - 0.005) * (wall == 0 ? 1.0 : -1.0);
+    sh.center = Vector2d(r.uniform(-X / 2 + w / 2 + 0.3, X / 2 - w / 2 - 0.6), y);
+  }
+  return sh;
+}
+
+/// Places the tables at random in the room, apart from each other and from the shelf's front.
+/// False when no place was found.
+bool placeTables(Random& r, Scene& s, int n) {
+  const double X = s.room.size.x(), Y = s.room.size.y();
+  const Shelf& sh = s.shelves.front();
+  const Vector2d shelf_front =
+      sh.center + Eigen::Rotation2Dd(detail::deg2rad(sh.yaw_deg)) * Vector2d(0.0, -sh.size.y());
+  const std::vector<double> heights = tableHeights(r, n);
+  for (int k = 0; k < n; ++k) {
+    Table t;
+    t.id = k + 1;
+    t.size =
+        Vector3d(r.uniform(0.9, 1.4), r.uniform(0.6, 0.85), heights[static_cast<std::size_t>(k)]);
+    t.yaw_deg = r.uniform(-30.0, 30.0) + (r.integer(0, 3) == 0 ? 90.0 : 0.0);
+    const double hd = 0.5 * std::hypot(t.size.x(), t.size.y());
+    const double reach = hd + 0.55 + 0.2;  // the table's orbit plus a margin to the walls
+    bool placed = false;
+    for (int attempt = 0; attempt < 200 && !placed; ++attempt) {
+      t.center = Vector2d(r.uniform(-X / 2 + reach, X / 2 - reach),
+                          r.uniform(-Y / 2 + reach, Y / 2 - reach));
+      if (!(X / 2 - reach > -X / 2 + reach && Y / 2 - reach > -Y / 2 + reach)) return false;
+      placed = (t.center - shelf_front).norm() >= hd + 1.2;
+      for (const Table& o : s.tables) {
+        const double gap = r.uniform(0.25, 0.8);
+        if ((t.center - o.center).norm() < hd + 0.5 * std::hypot(o.size.x(), o.size.y()) + gap)
+          placed = false;
+      }
+    }
+    if (!placed) return false;
+    s.tables.push_back(t);
+  }
+  return true;
+}
+
+/// True when every camera of both sessions is inside the room and at least 10 cm from every
+/// surface (furniture and objects): a generated trajectory must not pass through a table top.
+bool camerasClear(const Scene& s) {
+  for (const Session* session : {&s.reference, &s.current}) {
+    const std::vector<Primitive> prims = sessionPrimitives(s, *session);
+    for (const Pose& pose : trajectoryPoses(session->trajectory)) {
+      const Vector3d c = pose.translation();
+      if (std::abs(c.x()) > s.room.size.x() / 2 - 0.15 ||
+          std::abs(c.y()) > s.room.size.y() / 2 - 0.15 || c.z() > s.room.wall_height - 0.1)
+        return false;
+      for (const Primitive& p : prims)
+        if (signedDistance(p, c) < 0.10) return false;
+    }
+  }
+  return true;
+}
+
+/// An arc of `frames` views looking at `target` from `radius` away, centred on the direction
+/// `toward_deg` (world azimuth from the target), spanning 2 * half_deg.
+Orbit facingArc(Random& r, const Vector3d& target, double toward_deg, double radius, double z_lo,
+                double z_hi, int frames) {
+  Orbit o;
+  o.center = target.head<2>();
+  o.radius = radius;
+  const double half = r.uniform(25.0, 40.0);
+  o.start_deg = toward_deg - half;
+  o.end_deg = toward_deg + half;
+  o.z_min = z_lo;
+  o.z_max = z_hi;
+  o.height_waves = 1;
+  o.target = target;
+  o.frames = frames;
+  return o;
+}
+
+/// The room's layout and reference objects; false when this draw does not fit (the caller draws
+/// again).
+bool roomLayout(Random& r, Scene& s, Builder& b, std::vector<std::string>& add_supports) {
+  const int n_tables = r.integer(2, 3);
+  const double X = r.uniform(4.5, 5.5) + (n_tables == 3 ? 1.2 : 0.0), Y = r.uniform(4.5, 5.5);
   s.room.size = Vector2d(X, Y);
   s.room.walls = true;
   s.room.wall_height = 2.5;
-  for (int k = 0; k < n_tables; ++k) {
-    Table t;
-    t.id = k + 1;
-    t.center = Vector2d((k - 0.5 * (n_tables - 1)) * 2.5 + r.uniform(-0.1, 0.1),
-                        -0.5 + r.uniform(-0.15, 0.15));
-    t.yaw_deg = r.uniform(-20.0, 20.0);
-    t.size = Vector3d(r.uniform(0.9, 1.3), r.uniform(0.6, 0.85), r.uniform(0.70, 0.78));
-    s.tables.push_back(t);
-  }
-  Shelf sh;
-  sh.id = 1;
-  sh.size = Vector3d(r.uniform(0.8, 1.1), 0.32, r.uniform(1.5, 1.85));
-  sh.boards = r.integer(3, 4);
-  sh.center = Vector2d(r.uniform(-X / 2 + sh.size.x() / 2 + 0.3, X / 2 - sh.size.x() / 2 - 0.6),
-                       Y / 2 - sh.size.y() / 2 - 0.005);
-  s.shelves.push_back(sh);
+  const int shelf_wall = r.integer(0, 2);
+  s.shelves = {roomShelf(r, X, Y, shelf_wall)};
+  if (!placeTables(r, s, n_tables)) return false;
+  const Shelf& sh = s.shelves.front();
 
-  const std::string label = "room seed " + std::to_string(seed);
-  Builder b(s, r, label);
-  std::vector<std::string> add_supports;
   for (const Table& t : s.tables) {
     b.addSpot("table" + std::to_string(t.id));
     add_supports.push_back("table" + std::to_string(t.id));
@@ -531,70 +643,120 @@ Scene makeRoom(std::uint32_t seed, const PresetOptions& opt) {
     b.addSpot(name);
     add_supports.push_back(name);
   }
+  std::vector<KeepOut> furniture;
+  for (const Table& t : s.tables)
+    furniture.push_back(footprint(t.center, t.yaw_deg, t.size.head<2>(), 0.15));
+  // The shelf and the 1.2 m in front of it, where its scan stands.
+  const Vector2d out = Eigen::Rotation2Dd(detail::deg2rad(sh.yaw_deg)) * Vector2d(0.0, -1.0);
+  furniture.push_back(
+      footprint(sh.center + 0.6 * out, sh.yaw_deg, sh.size.head<2>() + Vector2d(0.0, 1.2), 0.15));
+  b.addSpot(
+      "floor",
+      Eigen::AlignedBox2d(Vector2d(-X / 2 + 0.5, -Y / 2 + 0.5), Vector2d(X / 2 - 0.5, Y / 2 - 0.5)),
+      furniture);
+  add_supports.push_back("floor");
   const double H = s.room.wall_height;
-  b.addSpot("wall+x", Eigen::AlignedBox2d(Vector2d(-1.0, 1.2 - H / 2), Vector2d(1.0, 1.8 - H / 2)));
+  std::vector<std::string> walls = {"wall+x"};
+  const char* const other[] = {"wall-y", "wall+y", "wall+y"};  // a wall without the shelf
+  if (r.integer(0, 1)) walls.push_back(other[shelf_wall]);
+  for (const std::string& w : walls) {
+    const double half = std::min(1.0, (w == "wall+x" ? Y : X) / 2 - 0.8);
+    b.addSpot(w, Eigen::AlignedBox2d(Vector2d(-half, 1.2 - H / 2), Vector2d(half, 1.8 - H / 2)));
+    add_supports.push_back(w);
+  }
 
   int id = 1;
+  bool fits = true;
   const auto add = [&](const std::string& support) {
-    if (!b.addObject(s.reference.objects, support, id))
-      throw Error("--scene", label + ": no room for object " + std::to_string(id));
-    ++id;
+    fits = fits && b.addObject(s.reference.objects, support, id++);
   };
   for (const Table& t : s.tables) {
     const int n = r.integer(3, 5);
     for (int i = 0; i < n; ++i) add("table" + std::to_string(t.id));
   }
   for (int k = 2; k <= sh.boards; ++k) add("shelf1.board" + std::to_string(k));
-  add("wall+x");
-  applyChanges(s, b, r, opt.changes.empty() ? defaultChanges("room") : opt.changes, add_supports,
-               label);
+  for (const std::string& w : walls) add(w);
+  const int n_floor = r.integer(1, 3);
+  for (int i = 0; i < n_floor; ++i) add("floor");
+  return fits;
+}
 
-  // Frames: 14 per table, 12 for the shelf, 6 for the wall object, scaled to opt.frames.
-  const double total = 14.0 * n_tables + 18.0;
+/// Cameras: an orbit around each table, a scan of the shelf, an arc facing each object on a
+/// wall or on the floor from the room's side.
+void roomTrajectories(Random& r, Scene& s, const PresetOptions& opt) {
+  const Shelf& sh = s.shelves.front();
+  const std::vector<SupportPlane> supports = supportPlanes(s);
+  std::vector<const Object*> spots;  // objects seen by an arc of their own (any session)
+  for (const Session* session : {&s.reference, &s.current})
+    for (const Object& o : session->objects)
+      if ((isWall(o.support) || o.support == "floor") &&
+          std::none_of(spots.begin(), spots.end(), [&](const Object* q) {
+            return q->support == o.support && (q->position - o.position).norm() < 0.6;
+          }))
+        spots.push_back(&o);
+  const double total = 14.0 * static_cast<double>(s.tables.size()) + 12.0 + 6.0 * spots.size();
   const auto frames = [&](int f) {
     return opt.frames > 0 ? std::max(1, static_cast<int>(std::lround(f * opt.frames / total))) : f;
   };
-  const Object& hung = *std::find_if(s.reference.objects.begin(), s.reference.objects.end(),
-                                     [](const Object& o) { return isWall(o.support); });
   for (Session* session : {&s.reference, &s.current}) {
+    session->trajectory.clear();
     const double coverage = session == &s.reference ? opt.reference_coverage : opt.current_coverage;
     for (const Table& t : s.tables) {
       const std::string support = "table" + std::to_string(t.id);
-      session->trajectory.push_back(
-          tableOrbit(r, t, frames(14), coverage, changeAzimuth(s, support, t.center)));
+      Orbit o = tableOrbit(r, t, frames(14), coverage, changeAzimuth(s, support, t.center));
+      // Above every table the orbit passes over.
+      for (const Table& q : s.tables)
+        if ((q.center - t.center).norm() < o.radius + 0.5 * std::hypot(q.size.x(), q.size.y()))
+          o.z_min = std::max(o.z_min, q.size.z() + 0.30);
+      o.z_max = std::max(o.z_max, o.z_min + 0.2);
+      session->trajectory.push_back(o);
     }
-    Orbit shelf;
-    const double front = sh.center.y() - sh.size.y() / 2;
-    shelf.center = Vector2d(sh.center.x(), front);
-    shelf.radius = r.uniform(1.3, 1.5);
-    shelf.start_deg = r.uniform(230.0, 245.0);
-    shelf.end_deg = r.uniform(295.0, 310.0);
-    shelf.z_min = r.uniform(0.75, 0.9);
-    shelf.z_max = r.uniform(1.45, 1.6);
+    const Vector2d out =
+        Eigen::Rotation2Dd(detail::deg2rad(sh.yaw_deg)) * Vector2d(0.0, -1.0);  // front normal
+    const Vector2d front = sh.center + 0.5 * sh.size.y() * out;
+    Orbit shelf = facingArc(r, Vector3d(front.x(), front.y(), sh.size.z() / 2),
+                            std::atan2(out.y(), out.x()) * 180.0 / detail::kPi, r.uniform(1.3, 1.5),
+                            r.uniform(0.75, 0.9), r.uniform(1.45, 1.7), frames(12));
     shelf.height_waves = r.integer(1, 2);
     shelf.target = Vector3d(sh.center.x(), sh.center.y(), sh.size.z() / 2);
     shelf.target_follow = 0.6;
-    shelf.frames = frames(12);
     session->trajectory.push_back(shelf);
-    Orbit wall;
-    wall.center = Vector2d(X / 2, hung.position.y());
-    wall.radius = r.uniform(1.2, 1.4);
-    wall.start_deg = r.uniform(145.0, 160.0);
-    wall.end_deg = r.uniform(200.0, 215.0);
-    wall.z_min = r.uniform(1.1, 1.3);
-    wall.z_max = r.uniform(1.5, 1.7);
-    wall.height_waves = 1;
-    wall.target = Vector3d(X / 2, hung.position.y(), hung.position.z());
-    wall.frames = frames(6);
-    session->trajectory.push_back(wall);
+    for (const Object* o : spots) {
+      const Vector2d to_centre = -o->position.head<2>();
+      const double toward = std::atan2(to_centre.y(), to_centre.x()) * 180.0 / detail::kPi;
+      const bool wall = isWall(o->support);
+      Vector3d target = o->position;
+      if (!wall) target.z() += 0.5 * o->size.z();
+      session->trajectory.push_back(
+          facingArc(r, target, toward, r.uniform(1.0, 1.3), wall ? r.uniform(1.1, 1.3) : 1.0,
+                    wall ? r.uniform(1.5, 1.7) : r.uniform(1.3, 1.5), frames(6)));
+    }
   }
-  const double a = r.uniform(0.0, 2.0 * kPi);
-  LocalisationError& e = s.current.localisation_error;
-  e.translation = opt.localisation_translation * Vector3d(std::cos(a), std::sin(a), 0.0);
-  e.rotation_deg =
-      Vector3d(0.0, 0.0, (r.integer(0, 1) ? 1.0 : -1.0) * opt.localisation_rotation_deg);
-  e.pivot = Vector3d::Zero();
-  return s;
+}
+
+Scene makeRoom(std::uint32_t seed, const PresetOptions& opt) {
+  Random r(seed);
+  const std::string label = "room seed " + std::to_string(seed);
+  for (int attempt = 0; attempt < 50; ++attempt) {
+    Scene s;
+    s.name = "room";
+    s.seed = seed;
+    Builder b(s, r, label);
+    std::vector<std::string> add_supports;
+    if (!roomLayout(r, s, b, add_supports)) continue;
+    applyChanges(s, b, r, opt.changes.empty() ? defaultChanges("room") : opt.changes, add_supports,
+                 label);
+    roomTrajectories(r, s, opt);
+    if (!camerasClear(s)) continue;
+    const double a = r.uniform(0.0, 2.0 * kPi);
+    LocalisationError& e = s.current.localisation_error;
+    e.translation = opt.localisation_translation * Vector3d(std::cos(a), std::sin(a), 0.0);
+    e.rotation_deg =
+        Vector3d(0.0, 0.0, (r.integer(0, 1) ? 1.0 : -1.0) * opt.localisation_rotation_deg);
+    e.pivot = Vector3d::Zero();
+    return s;
+  }
+  throw Error("--scene", label + ": no layout found where every camera is clear of the furniture");
 }
 
 }  // namespace
