@@ -214,9 +214,11 @@ void SparseTsdf::updateBlock(Block& block, std::uint64_t key, const DepthFrame& 
       for (int x = 0; x < kSide; ++x) {
         const Vector3d q = origin + step.col(0) * x + step.col(1) * y + step.col(2) * z;
         if (q.z() <= 0.0) continue;
-        // The nearest pixel (Open3D rounds too); the range test also rejects NaN.
-        const double u = std::floor(K.fx * q.x() / q.z() + K.cx + 0.5);
-        const double v = std::floor(K.fy * q.y() / q.z() + K.cy + 0.5);
+        // The nearest pixel (Open3D rounds too) is floor(u), floor(v), which is the truncation
+        // once they are known to be >= 0; the range test also rejects NaN.
+        const double inv_z = 1.0 / q.z();
+        const double u = K.fx * q.x() * inv_z + K.cx + 0.5;
+        const double v = K.fy * q.y() * inv_z + K.cy + 0.5;
         if (!(u >= 0.0 && u < K.width && v >= 0.0 && v < K.height)) continue;
         const float d = frame.at(static_cast<int>(u), static_cast<int>(v));
         if (!DepthFrame::isValidDepth(d) || d > max_depth_) continue;
