@@ -3,7 +3,9 @@
 /// The synthetic scene simulator behind `planesdf simulate` (DESIGN §3, issue 5): a room with
 /// tables, a shelf and small objects seen in two sessions (reference, current) that differ by
 /// known changes, rendered by exact ray casting with a Kinect-like depth noise model, plus the
-/// ground truth of which points belong to changed objects.
+/// ground truth of which points belong to changed objects. Each session is given as frames with
+/// poses, as a whole-scene cloud and as the whole-scene reconstruction a mapper would export (TSDF
+/// surface points and mesh), each form with its ground truth.
 ///
 /// World frame: z up, the floor is z = 0, the room is centred on the origin. Lengths in metres.
 /// Camera poses are camera-to-world in the OpenCV optical frame (x right, y down, z forward).

@@ -30,7 +30,7 @@ constexpr double kFloorHalf = 1.0 + 0.1;  // a 2 m room: the floor slab reaches 
 
 /// A 2 x 2 m floor (no walls) with a 30 x 20 x 25 cm box standing at the origin, seen by 5
 /// noise-free 640 x 480 frames from an 80 degree arc on the +x side (1.2 m out, 0.9 to 1.1 m up),
-/// so the box's -x face is never seen. Both sessions are the same.
+/// so the box's -x face is never seen. The current session (unused) has one frame.
 Scene floorAndBox() {
   Scene s;
   s.room.size = Eigen::Vector2d(2.0, 2.0);
@@ -50,7 +50,9 @@ Scene floorAndBox() {
   o.start_deg = -40;
   o.end_deg = 40;
   o.frames = 5;
-  s.reference.trajectory = s.current.trajectory = {o};
+  s.reference.trajectory = {o};
+  o.frames = 1;
+  s.current.trajectory = {o};
   return s;
 }
 
