@@ -38,12 +38,16 @@ int runSimulate(const SimulateArgs& args) {
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const sim::ChangedIds changed = sim::changedObjects(scene);
+  const sim::SessionData& ref = result.reference;
+  const sim::SessionData& cur = result.current;
   std::printf(
       "%s: %zu + %zu frames, clouds %zu + %zu points, ground truth %zu + %zu points "
-      "(%zu removed-side, %zu added-side objects), %.1f s\n",
-      args.out.c_str(), result.reference.frames.size(), result.current.frames.size(),
-      result.reference.cloud.size(), result.current.cloud.size(), result.reference.gt.size(),
-      result.current.gt.size(), changed.reference.size(), changed.current.size(), seconds);
+      "(%zu removed-side, %zu added-side objects), reconstructions %zu + %zu points "
+      "(ground truth %zu + %zu), meshes %zu + %zu triangles, %.1f s\n",
+      args.out.c_str(), ref.frames.size(), cur.frames.size(), ref.cloud.size(), cur.cloud.size(),
+      ref.gt.size(), cur.gt.size(), changed.reference.size(), changed.current.size(),
+      ref.reconstruction.size(), cur.reconstruction.size(), ref.reconstruction_gt.size(),
+      cur.reconstruction_gt.size(), ref.mesh_triangles.size(), cur.mesh_triangles.size(), seconds);
   for (const sim::Change& c : scene.changes) {
     std::printf("  change %-10s reference", sim::toString(c.kind));
     for (const int id : c.reference_ids) std::printf(" %d", id);

@@ -74,6 +74,13 @@ int main(int argc, char** argv) {
   simulate->add_option("--scene", sim_scene, "tabletop, room or a scene FILE.json")->required();
   simulate->add_option("--seed", sim_seed, "Random seed")->capture_default_str();
   simulate->add_option("--out", sim_out, "Output folder")->required();
+  simulate->footer(
+      "Writes into the --out folder: reference/ and current/ (TUM folders, reported poses),\n"
+      "reference.ply and current.ply (whole-scene clouds), reference_recon.ply and\n"
+      "current_recon.ply (TSDF reconstructions, 7 mm voxels), reference_mesh.ply and\n"
+      "current_mesh.ply (their meshes), gt/reference.ply, gt/current.ply, gt/reference_recon.ply\n"
+      "and gt/current_recon.ply (the points on changed objects, int object_id; the _recon ones\n"
+      "also label the meshes' vertices), scene.json.");
 
   // fuse
   FuseArgs fuse_args;

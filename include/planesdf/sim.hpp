@@ -3,7 +3,9 @@
 /// The synthetic scene simulator behind `planesdf simulate` (DESIGN §3, issue 5): a room with
 /// tables, a shelf and small objects seen in two sessions (reference, current) that differ by
 /// known changes, rendered by exact ray casting with a Kinect-like depth noise model, plus the
-/// ground truth of which points belong to changed objects.
+/// ground truth of which points belong to changed objects. Each session is given as frames with
+/// poses, as a whole-scene cloud and as the whole-scene reconstruction a mapper would export (TSDF
+/// surface points and mesh), each form with its ground truth.
 ///
 /// World frame: z up, the floor is z = 0, the room is centred on the origin. Lengths in metres.
 /// Camera poses are camera-to-world in the OpenCV optical frame (x right, y down, z forward).
@@ -319,6 +321,23 @@ struct SessionData {
   /// "object_id": a point belongs to an object when the object's surface is within
   /// kLabelDistance of it and nearer than any other surface of the scene.
   PointCloud gt;
+  /// The whole-scene reconstruction a mapper would export (Open3D, voxblox, KinectFusion), in the
+  /// reported frame: the frames fused with the reported poses into a projective TSDF of
+  /// SimulateOptions::reconstruction_voxel (truncation 4 voxels, weight 1 per observation, depth
+  /// up to the sensor's max_depth), and its surface extracted as Open3D's extract_point_cloud
+  /// does: one point at the linear zero crossing of each voxel edge (voxel centre to its +x, +y or
+  /// +z neighbour) whose two voxels were both observed by at least 2 frames and differ in sign.
+  /// Points only: no normals, colours or sensor pose. Ordered by TSDF block, then voxel, then axis.
+  PointCloud reconstruction;
+  /// The marching-cubes mesh of the same TSDF over the cubes whose 8 voxels were observed by at
+  /// least 2 frames: triangles indexing `reconstruction.points` (its vertices are exactly those
+  /// points; a point on no observed cube is an unused vertex), counter-clockwise seen from the
+  /// free side.
+  std::vector<Triangle> mesh_triangles;
+  /// The points of `reconstruction` on this side's changed objects, labelled as `gt` is (each
+  /// point mapped back to the true frame with E^-1 for the distance queries); also the ground
+  /// truth of the mesh, whose vertices are the same points.
+  PointCloud reconstruction_gt;
 };
 
 struct Simulation {
@@ -328,20 +347,34 @@ struct Simulation {
 
 inline constexpr double kVoxel = 0.0035;        ///< finest whole-cloud cell size (m)
 inline constexpr double kLabelDistance = 0.01;  ///< ground-truth labelling distance (m)
+/// The range of SimulateOptions::reconstruction_voxel (m).
+inline constexpr double kMinReconstructionVoxel = 0.005;
+inline constexpr double kMaxReconstructionVoxel = 0.010;
 
 struct SimulateOptions {
-  int threads = 0;  ///< rendering / labelling threads; 0 = all cores
+  int threads = 0;  ///< rendering / labelling / reconstruction threads; 0 = all cores
+  /// Voxel size of the reconstruction's TSDF (m), in [kMinReconstructionVoxel,
+  /// kMaxReconstructionVoxel] (what mappers export scenes at).
+  double reconstruction_voxel = 0.007;
   /// Called with one-line progress messages (e.g. to print on stderr); may be empty.
   std::function<void(const std::string&)> progress;
 };
 
-/// Renders both sessions, builds the whole-scene clouds and the ground truth. Validates the scene
-/// first (planesdf::Error naming "scene").
+/// Renders both sessions, builds the whole-scene clouds, the reconstructions and their ground
+/// truth. Validates the scene first (planesdf::Error naming "scene") and
+/// options.reconstruction_voxel (planesdf::Error naming it).
 Simulation simulate(const Scene& scene, const SimulateOptions& options = {});
 
-/// Writes the `planesdf simulate` folder (DESIGN §3): dir/reference/ and dir/current/ (TUM
-/// folders with the reported poses), dir/reference.ply and dir/current.ply, dir/gt/reference.ply
-/// and dir/gt/current.ply, dir/scene.json. Every file is written atomically; folders are created.
+/// Writes the `planesdf simulate` folder (DESIGN §3), binary little-endian PLYs:
+///   reference/, current/                  TUM folders with the reported poses
+///   reference.ply, current.ply            whole-scene clouds (SessionData::cloud)
+///   reference_recon.ply, current_recon.ply  reconstructions (SessionData::reconstruction)
+///   reference_mesh.ply, current_mesh.ply  meshes: the reconstruction's points as vertices and
+///                                         SessionData::mesh_triangles as faces
+///   gt/reference.ply, gt/current.ply      ground truth of the clouds (SessionData::gt)
+///   gt/reference_recon.ply, gt/current_recon.ply  ground truth of the reconstructions and meshes
+///   scene.json
+/// Every file is written atomically; folders are created.
 void writeSimulation(const std::string& dir, const Scene& scene, const Simulation& simulation);
 
 }  // namespace planesdf::sim

@@ -101,4 +101,7 @@ struct PointCloud {
   void validate(const std::string& what = "point cloud") const;
 };
 
+/// A mesh triangle: three indices into a point cloud's points (a PLY face).
+using Triangle = std::array<std::uint32_t, 3>;
+
 }  // namespace planesdf

@@ -13,15 +13,18 @@
 #include <system_error>
 #include <vector>
 
+#include "key_index.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/ply.hpp"
 #include "planesdf/io/tum.hpp"
 #include "planesdf/sim.hpp"
+#include "reconstruct.hpp"
 #include "world.hpp"
 
 namespace planesdf::sim {
 namespace {
 namespace fs = std::filesystem;
+using detail::KeyIndex;
 using Eigen::Vector3d;
 
 /// A cell is part of a noise shell when a face neighbour holds this many times its points.
@@ -77,61 +80,6 @@ Cell cellOf(const Vector3d& p, double depth) {
           static_cast<std::int64_t>(std::floor(q.y())),
           static_cast<std::int64_t>(std::floor(q.z()))};
 }
-
-/// Open-addressing hash map from cell keys to dense indices 0, 1, 2, ... in insertion order.
-class KeyIndex {
- public:
-  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
-
-  explicit KeyIndex(std::size_t expected = 1024) {
-    std::size_t cap = 1024;
-    while (cap < 2 * expected) cap *= 2;
-    keys_.assign(cap, kEmpty);
-    index_.assign(cap, kNone);
-  }
-
-  std::size_t size() const { return count_; }
-
-  /// The index of `key`, inserting it (as index size()) when new.
-  std::uint32_t insert(std::uint64_t key) {
-    if (2 * (count_ + 1) > keys_.size()) grow();
-    const std::size_t i = slot(key);
-    if (keys_[i] == kEmpty) {
-      keys_[i] = key;
-      index_[i] = static_cast<std::uint32_t>(count_++);
-    }
-    return index_[i];
-  }
-
-  std::uint32_t find(std::uint64_t key) const { return index_[slot(key)]; }
-
- private:
-  static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
-
-  std::size_t slot(std::uint64_t key) const {
-    const std::uint64_t h = key * 0x9E3779B97F4A7C15ull;
-    std::size_t i = static_cast<std::size_t>(h >> 24) & (keys_.size() - 1);
-    while (keys_[i] != kEmpty && keys_[i] != key) i = (i + 1) & (keys_.size() - 1);
-    return i;
-  }
-
-  void grow() {
-    const std::vector<std::uint64_t> old_keys = std::move(keys_);
-    const std::vector<std::uint32_t> old_index = std::move(index_);
-    keys_.assign(old_keys.size() * 2, kEmpty);
-    index_.assign(old_keys.size() * 2, kNone);
-    for (std::size_t j = 0; j < old_keys.size(); ++j)
-      if (old_keys[j] != kEmpty) {
-        const std::size_t i = slot(old_keys[j]);
-        keys_[i] = old_keys[j];
-        index_[i] = old_index[j];
-      }
-  }
-
-  std::vector<std::uint64_t> keys_;
-  std::vector<std::uint32_t> index_;
-  std::size_t count_ = 0;
-};
 
 /// The sum and count of the points of each cell.
 class CellAccumulator {
@@ -217,6 +165,99 @@ std::string fixed(double v, int decimals) {
   return buf;
 }
 
+/// The centroids of the whole-scene cloud (true frame): every valid pixel of every frame placed
+/// with its true pose, one centroid per cell (see CellAccumulator).
+std::vector<Vector3d> wholeCloud(const SessionData& data, const Intrinsics& K, int threads) {
+  const int n = static_cast<int>(data.frames.size());
+  // Frames are binned in parallel, a batch of `threads` frames at a time, and merged in frame
+  // order, so the sums (and the output) do not depend on the thread count.
+  CellAccumulator cells(static_cast<std::size_t>(n) * 20000);
+  for (int batch = 0; batch < n; batch += threads) {
+    const int count = std::min(threads, n - batch);
+    std::vector<CellAccumulator> partial(
+        static_cast<std::size_t>(count),
+        CellAccumulator(static_cast<std::size_t>(K.width) * K.height / 2));
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static, 1)
+    for (int k = 0; k < count; ++k) {
+      const DepthFrame& f = data.frames[static_cast<std::size_t>(batch + k)];
+      const Pose& T = data.true_poses[static_cast<std::size_t>(batch + k)];
+      CellAccumulator& acc = partial[static_cast<std::size_t>(k)];
+      for (int v = 0; v < K.height; ++v)
+        for (int u = 0; u < K.width; ++u) {
+          const float z = f.at(u, v);
+          if (!DepthFrame::isValidDepth(z)) continue;
+          const Vector3d pc((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
+          const Vector3d pw = T * pc;
+          acc.add(packCell(cellOf(pw, z)), pw, 1);
+        }
+    }
+    for (const CellAccumulator& acc : partial) cells.merge(acc);
+  }
+  return cells.centroids(threads);
+}
+
+/// What the ground truth of one session is measured against: the session's surfaces, those of its
+/// changed objects and their ids.
+struct Labeller {
+  const detail::World& world;
+  const detail::World& changed_world;
+  const std::set<int>& ids;
+
+  /// The owner of each point (true frame) when it is a changed object (its surface is within
+  /// kLabelDistance and nearer than any other surface of the scene), else 0. Only points that near
+  /// a changed object need the whole scene.
+  std::vector<int> owners(const std::vector<Vector3d>& points, int threads) const {
+    const std::int64_t m = static_cast<std::int64_t>(points.size());
+    std::vector<int> owner(points.size(), 0);
+#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4096)
+    for (std::int64_t j = 0; j < m; ++j) {
+      const auto i = static_cast<std::size_t>(j);
+      int o = 0;
+      if (changed_world.nearest(points[i], o) <= kLabelDistance &&
+          world.nearest(points[i], o) <= kLabelDistance && ids.count(o))
+        owner[i] = o;
+    }
+    return owner;
+  }
+};
+
+/// `points` (reported frame) as `cloud`, and those with a nonzero owner as `gt` with the Int32
+/// field "object_id".
+void fillClouds(const std::vector<Vector3d>& points, const std::vector<int>& owners,
+                PointCloud& cloud, PointCloud& gt) {
+  cloud.points.reserve(points.size());
+  std::vector<double> gt_ids;
+  for (std::size_t j = 0; j < points.size(); ++j) {
+    const Eigen::Vector3f p = points[j].cast<float>();
+    cloud.points.push_back(p);
+    if (owners[j] != 0) {
+      gt.points.push_back(p);
+      gt_ids.push_back(owners[j]);
+    }
+  }
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  gt.width = static_cast<std::uint32_t>(gt.points.size());
+  gt.addField("object_id", ScalarType::Int32).values = std::move(gt_ids);
+}
+
+/// Voxels are truncated at this many voxels (the band the zero crossing is found in).
+constexpr double kTruncationVoxels = 4.0;
+/// Surface voxels must have been observed this often: a voxel seen by one frame only holds that
+/// frame's noise and flying pixels unaveraged, while every surface an orbit covers is seen by
+/// several consecutive frames.
+constexpr int kMinWeight = 2;
+
+/// Fuses the frames (reported poses) into a TSDF and extracts its surface (reported frame).
+detail::TsdfSurface reconstruct(const SessionData& data, const SensorModel& sensor, double voxel,
+                                int threads, std::string& stats) {
+  detail::SparseTsdf tsdf(voxel, kTruncationVoxels * voxel, sensor.max_depth);
+  for (std::size_t i = 0; i < data.frames.size(); ++i)
+    tsdf.integrate(data.frames[i], data.reported_poses[i], threads);
+  stats = std::to_string(tsdf.blockCount()) + " blocks, " +
+          fixed(static_cast<double>(tsdf.bytes()) / (1 << 20), 0) + " MB";
+  return tsdf.extractSurface(kMinWeight, threads);
+}
+
 SessionData simulateSession(const Scene& scene, int index, const std::vector<int>& changed_ids,
                             int threads, const SimulateOptions& options) {
   const Session& session = index == 0 ? scene.reference : scene.current;
@@ -245,37 +286,6 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
   for (const Pose& T : data.true_poses) data.reported_poses.push_back(E * T);
   report("rendered " + std::to_string(n) + " frames in " + fixed(secondsSince(t0), 1) + " s");
 
-  // Whole-scene cloud: every valid pixel in the world (true poses), centroid per cell.
-  t0 = std::chrono::steady_clock::now();
-  const Intrinsics& K = scene.sensor.intrinsics;
-  // Frames are binned in parallel, a batch of `threads` frames at a time, and merged in frame
-  // order, so the sums (and the output) do not depend on the thread count.
-  CellAccumulator cells(static_cast<std::size_t>(n) * 20000);
-  for (int batch = 0; batch < n; batch += threads) {
-    const int count = std::min(threads, n - batch);
-    std::vector<CellAccumulator> partial(
-        static_cast<std::size_t>(count),
-        CellAccumulator(static_cast<std::size_t>(K.width) * K.height / 2));
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static, 1)
-    for (int k = 0; k < count; ++k) {
-      const DepthFrame& f = data.frames[static_cast<std::size_t>(batch + k)];
-      const Pose& T = data.true_poses[static_cast<std::size_t>(batch + k)];
-      CellAccumulator& acc = partial[static_cast<std::size_t>(k)];
-      for (int v = 0; v < K.height; ++v)
-        for (int u = 0; u < K.width; ++u) {
-          const float z = f.at(u, v);
-          if (!DepthFrame::isValidDepth(z)) continue;
-          const Vector3d pc((u - K.cx) / K.fx * z, (v - K.cy) / K.fy * z, z);
-          const Vector3d pw = T * pc;
-          acc.add(packCell(cellOf(pw, z)), pw, 1);
-        }
-    }
-    for (const CellAccumulator& acc : partial) cells.merge(acc);
-  }
-  const std::vector<Vector3d> points = cells.centroids(threads);
-
-  // Ground truth: a point is on a changed object when that object's surface is the nearest one
-  // and within kLabelDistance. Only points that near a changed object need the whole scene.
   const std::set<int> ids(changed_ids.begin(), changed_ids.end());
   std::vector<Primitive> changed_prims;
   for (const Object& o : session.objects)
@@ -284,33 +294,34 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
       changed_prims.insert(changed_prims.end(), parts.begin(), parts.end());
     }
   const detail::World changed_world(changed_prims);
-  const std::int64_t m = static_cast<std::int64_t>(points.size());
-  std::vector<int> owner(points.size(), 0);
-  std::vector<double> dist(points.size(), detail::kInf);
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4096)
-  for (std::int64_t j = 0; j < m; ++j) {
-    const auto i = static_cast<std::size_t>(j);
-    if (changed_world.nearest(points[i], owner[i]) <= kLabelDistance)
-      dist[i] = world.nearest(points[i], owner[i]);
-  }
+  const Labeller labeller{world, changed_world, ids};
 
-  data.cloud.points.reserve(points.size());
-  std::vector<double> gt_ids;
-  for (std::size_t j = 0; j < points.size(); ++j) {
-    const Eigen::Vector3f p = (E * points[j]).cast<float>();
-    data.cloud.points.push_back(p);
-    if (dist[j] <= kLabelDistance && ids.count(owner[j])) {
-      data.gt.points.push_back(p);
-      gt_ids.push_back(owner[j]);
-    }
-  }
-  data.cloud.width = static_cast<std::uint32_t>(data.cloud.points.size());
-  data.gt.width = static_cast<std::uint32_t>(data.gt.points.size());
-  ScalarField& field = data.gt.addField("object_id", ScalarType::Int32);
-  field.values = std::move(gt_ids);
+  // Whole-scene cloud: built in the true frame, labelled there, written in the reported frame.
+  t0 = std::chrono::steady_clock::now();
+  std::vector<Vector3d> points = wholeCloud(data, scene.sensor.intrinsics, threads);
+  const std::vector<int> owners = labeller.owners(points, threads);
+  for (Vector3d& p : points) p = E * p;
+  fillClouds(points, owners, data.cloud, data.gt);
   report("cloud " + std::to_string(data.cloud.size()) + " points, ground truth " +
          std::to_string(data.gt.size()) + " points on " + std::to_string(ids.size()) +
          " changed objects (" + fixed(secondsSince(t0), 1) + " s)");
+
+  // Reconstruction: fused with the reported poses, labelled in the true frame (E^-1).
+  t0 = std::chrono::steady_clock::now();
+  std::string stats;
+  detail::TsdfSurface surface =
+      reconstruct(data, scene.sensor, options.reconstruction_voxel, threads, stats);
+  std::vector<Vector3d> true_points(surface.points.size());
+  const Pose E_inv = E.inverse();
+  for (std::size_t i = 0; i < true_points.size(); ++i) true_points[i] = E_inv * surface.points[i];
+  fillClouds(surface.points, labeller.owners(true_points, threads), data.reconstruction,
+             data.reconstruction_gt);
+  data.mesh_triangles = std::move(surface.triangles);
+  report("reconstruction (" + fixed(options.reconstruction_voxel * 1000.0, 1) + " mm TSDF, " +
+         stats + ") " + std::to_string(data.reconstruction.size()) + " points, " +
+         std::to_string(data.mesh_triangles.size()) + " triangles, ground truth " +
+         std::to_string(data.reconstruction_gt.size()) + " points (" + fixed(secondsSince(t0), 1) +
+         " s)");
   return data;
 }
 
@@ -318,6 +329,11 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
 
 Simulation simulate(const Scene& scene, const SimulateOptions& options) {
   validateScene(scene, "scene");
+  const double voxel = options.reconstruction_voxel;
+  if (!(voxel >= kMinReconstructionVoxel && voxel <= kMaxReconstructionVoxel))
+    throw Error("", "SimulateOptions::reconstruction_voxel: " + std::to_string(voxel) +
+                        " m is outside [" + fixed(kMinReconstructionVoxel, 3) + ", " +
+                        fixed(kMaxReconstructionVoxel, 3) + "] m");
   const int threads = options.threads > 0 ? options.threads : std::max(1, omp_get_max_threads());
   const ChangedIds changed = changedObjects(scene);
   Simulation sim;
@@ -337,8 +353,13 @@ void writeSimulation(const std::string& dir, const Scene& scene, const Simulatio
        {std::pair<const SessionData*, const char*>{&simulation.reference, "reference"},
         {&simulation.current, "current"}}) {
     io::writeTumSequence((root / label).string(), data->frames, data->reported_poses);
-    io::writePly((root / (std::string(label) + ".ply")).string(), data->cloud);
-    io::writePly((root / "gt" / (std::string(label) + ".ply")).string(), data->gt);
+    const std::string name(label);
+    io::writePly((root / (name + ".ply")).string(), data->cloud);
+    io::writePly((root / "gt" / (name + ".ply")).string(), data->gt);
+    io::writePly((root / (name + "_recon.ply")).string(), data->reconstruction);
+    io::writePly((root / "gt" / (name + "_recon.ply")).string(), data->reconstruction_gt);
+    io::writePlyMesh((root / (name + "_mesh.ply")).string(), data->reconstruction,
+                     data->mesh_triangles);
   }
   saveSceneJson((root / "scene.json").string(), scene);
 }

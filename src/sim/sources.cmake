@@ -1,1 +1,2 @@
-set(PLANESDF_SIM_SOURCES scene.cpp preset.cpp scene_json.cpp geometry.cpp world.cpp render.cpp simulate.cpp)
+set(PLANESDF_SIM_SOURCES scene.cpp preset.cpp scene_json.cpp geometry.cpp world.cpp render.cpp reconstruct.cpp
+    simulate.cpp)

@@ -30,6 +30,7 @@ using planesdf::ScalarType;
 using planesdf::io::PlyFormat;
 using planesdf::io::readPly;
 using planesdf::io::writePly;
+using planesdf::io::writePlyMesh;
 using planesdf::test::TempDir;
 using planesdf::test::writeBytes;
 namespace fs = std::filesystem;
@@ -307,6 +308,15 @@ PointCloud parse(const std::string& bytes) {
   return planesdf::io::parsePly(bytes, "mem.ply");
 }
 
+/// Four vertices with an object_id field (for two triangles).
+PointCloud meshVertices() {
+  PointCloud c;
+  c.points = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0.5f}};
+  c.width = 4;
+  c.addField("object_id", ScalarType::Int32).values = {1, 2, 3, 4};
+  return c;
+}
+
 }  // namespace
 
 TEST(Ply, ReadsEveryPropertyTypeAscii) {
@@ -402,6 +412,82 @@ TEST(Ply, BinarySkipsListElementsBeforeAndAfterVertices) {
     // The same file with its last face list cut short is truncated.
     expectReadError(b.substr(0, b.size() - 9), {"truncated", "face"});
   }
+}
+
+TEST(Ply, AsciiSkippedRecordsMustHoldTheirListLengths) {
+  const std::string header =
+      "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 2\nproperty uchar flags\n"
+      "property list uchar int vertex_indices\nend_header\n0 0 0\n";
+  EXPECT_EQ(parse(header + "1 3 0 0 0\n7 0\n").size(), 1u);  // an empty list
+  // Lines 12 and 13 hold the faces. The last line cut short, one value too many, a bad or negative
+  // length, a missing list.
+  expectReadError(header + "1 3 0 0 0\n1 3 0 0\n", {"line 13", "face", "record 1", "expected 5"});
+  expectReadError(header + "1 3 0 0 0 0\n1 3 0 0 0\n", {"line 12", "record 0", "found 6"});
+  expectReadError(header + "1 x 0 0 0\n1 3 0 0 0\n", {"line 12", "vertex_indices", "'x'"});
+  expectReadError(header + "1 -1\n1 3 0 0 0\n", {"line 12", "length", "'-1'"});
+  expectReadError(header + "1 3 0 0 0\n1\n", {"line 13", "expected 2", "found 1"});
+}
+
+TEST(Ply, MeshWritesFacesThatReadPlySkips) {
+  const PointCloud vertices = meshVertices();
+  const std::vector<planesdf::Triangle> faces = {{0, 1, 2}, {2, 1, 3}};
+  const std::string vertex_header =
+      "element vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+      "property int object_id\nelement face 2\nproperty list uchar int vertex_indices\n"
+      "end_header\n";
+  for (const PlyFormat f :
+       {PlyFormat::Ascii, PlyFormat::BinaryLittleEndian, PlyFormat::BinaryBigEndian}) {
+    SCOPED_TRACE(static_cast<int>(f));
+    TempDir dir;
+    const std::string path = dir.file("mesh.ply");
+    writePlyMesh(path, vertices, faces, f);
+    expectSameCloud(vertices, readPly(path));
+    const std::string text = readText(path);
+    const std::size_t header_end = text.find("end_header\n") + 11;
+    EXPECT_NE(text.find(vertex_header), std::string::npos) << text.substr(0, header_end);
+    const std::string body = text.substr(header_end);
+    if (f == PlyFormat::Ascii) {
+      EXPECT_EQ(body, "0 0 0 1\n1 0 0 2\n0 1 0 3\n1 1 0.5 4\n3 0 1 2\n3 2 1 3\n");
+      continue;
+    }
+    const bool big = f == PlyFormat::BinaryBigEndian;
+    std::string expected_faces;
+    for (const planesdf::Triangle& t : faces) {
+      expected_faces += '\x03';
+      for (const std::uint32_t v : t) expected_faces += bytesOf(static_cast<std::int32_t>(v), big);
+    }
+    ASSERT_EQ(body.size(), 4u * 16u + expected_faces.size());
+    EXPECT_EQ(body.substr(4u * 16u), expected_faces);
+    // A cut last face is a truncated file.
+    expectReadError(text.substr(0, text.size() - 2), {"face", "truncated"});
+  }
+}
+
+TEST(Ply, MeshWithoutFacesOrVerticesRoundTrips) {
+  TempDir dir;
+  writePlyMesh(dir.file("a.ply"), meshVertices(), {});
+  EXPECT_EQ(readPly(dir.file("a.ply")).size(), 4u);
+  EXPECT_NE(readText(dir.file("a.ply")).find("element face 0\n"), std::string::npos);
+  writePlyMesh(dir.file("b.ply"), PointCloud{}, {}, PlyFormat::Ascii);
+  EXPECT_TRUE(readPly(dir.file("b.ply")).empty());
+}
+
+TEST(Ply, MeshWithABadIndexThrowsAndKeepsExistingFile) {
+  TempDir dir;
+  const std::string path = dir.file("mesh.ply");
+  writeBytes(path, "old content");
+  try {
+    writePlyMesh(path, meshVertices(), {{0, 1, 2}, {1, 4, 2}});
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find(path), std::string::npos) << what;
+    EXPECT_NE(what.find("face 1"), std::string::npos) << what;
+    EXPECT_NE(what.find("vertex index 4"), std::string::npos) << what;
+  }
+  EXPECT_EQ(readText(path), "old content");
+  EXPECT_EQ(filesIn(dir.path()), std::vector<std::string>{"mesh.ply"});
 }
 
 TEST(Ply, ReadsExtraPropertiesByNameAndIgnoresAlpha) {

@@ -625,7 +625,11 @@ TEST(SimOutput, SameSeedGivesIdenticalFilesAndSceneJsonReproducesThem) {
                         "scene.json", "reference/depth.txt", "reference/groundtruth.txt",
                         "reference/intrinsics.txt", "current/depth.txt"})
     EXPECT_TRUE(a.count(f)) << f;
-  EXPECT_EQ(a.size(), 2u * (4u + 3u) + 5u);  // 4 PNGs + 3 index files per session, 5 files
+  for (const char* f : {"reference_recon.ply", "current_mesh.ply", "gt/current_recon.ply"})
+    EXPECT_TRUE(a.count(f)) << f;
+  // 4 PNGs + 3 index files per session; per session a cloud, a reconstruction, a mesh and two
+  // ground truths; scene.json.
+  EXPECT_EQ(a.size(), 2u * (4u + 3u) + 2u * 5u + 1u);
   EXPECT_TRUE(a == folderBytes(tmp.file("b"))) << "thread count changed the output";
   EXPECT_TRUE(a == folderBytes(tmp.file("c"))) << "scene.json did not reproduce the output";
 

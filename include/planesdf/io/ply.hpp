@@ -8,6 +8,7 @@
 /// included.
 
 #include <string>
+#include <vector>
 
 #include "planesdf/types.hpp"
 
@@ -27,5 +28,13 @@ PointCloud parsePly(const std::string& bytes, const std::string& name);
 /// uchar, every ScalarField with its own type. Throws planesdf::Error on failure.
 void writePly(const std::string& path, const PointCloud& cloud,
               PlyFormat format = PlyFormat::BinaryLittleEndian);
+
+/// Writes a triangle mesh atomically: `vertices` as the vertex element (as writePly writes a
+/// cloud), then a face element of `triangles` (`property list uchar int vertex_indices`).
+/// readPly reads the vertices back and skips the faces. Throws planesdf::Error when a triangle
+/// indexes a vertex that does not exist or there are more vertices than an int can index.
+void writePlyMesh(const std::string& path, const PointCloud& vertices,
+                  const std::vector<Triangle>& triangles,
+                  PlyFormat format = PlyFormat::BinaryLittleEndian);
 
 }  // namespace planesdf::io
