@@ -258,6 +258,40 @@ detail::TsdfSurface reconstruct(const SessionData& data, const SensorModel& sens
   return tsdf.extractSurface(kMinWeight, threads);
 }
 
+/// Sets data.cloud and data.gt (see SessionData): built in the true frame, labelled there, written
+/// in the reported frame (E). Returns the progress message.
+std::string addWholeCloud(SessionData& data, const Pose& E, const Labeller& labeller,
+                          const Intrinsics& K, int threads) {
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<Vector3d> points = wholeCloud(data, K, threads);
+  const std::vector<int> owners = labeller.owners(points, threads);
+  for (Vector3d& p : points) p = E * p;
+  fillClouds(points, owners, data.cloud, data.gt);
+  return "cloud " + std::to_string(data.cloud.size()) + " points, ground truth " +
+         std::to_string(data.gt.size()) + " points on " + std::to_string(labeller.ids.size()) +
+         " changed objects (" + fixed(secondsSince(t0), 1) + " s)";
+}
+
+/// Sets data.reconstruction, mesh_triangles and reconstruction_gt (see SessionData): fused with
+/// the reported poses, labelled in the true frame (E^-1). Returns the progress message.
+std::string addReconstruction(SessionData& data, const Pose& E, const Labeller& labeller,
+                              const SensorModel& sensor, double voxel, int threads) {
+  const auto t0 = std::chrono::steady_clock::now();
+  std::string stats;
+  detail::TsdfSurface surface = reconstruct(data, sensor, voxel, threads, stats);
+  std::vector<Vector3d> true_points(surface.points.size());
+  const Pose to_true = E.inverse();
+  for (std::size_t i = 0; i < true_points.size(); ++i) true_points[i] = to_true * surface.points[i];
+  fillClouds(surface.points, labeller.owners(true_points, threads), data.reconstruction,
+             data.reconstruction_gt);
+  data.mesh_triangles = std::move(surface.triangles);
+  return "reconstruction (" + fixed(voxel * 1000.0, 1) + " mm TSDF, " + stats + ") " +
+         std::to_string(data.reconstruction.size()) + " points, " +
+         std::to_string(data.mesh_triangles.size()) + " triangles, ground truth " +
+         std::to_string(data.reconstruction_gt.size()) + " points (" + fixed(secondsSince(t0), 1) +
+         " s)";
+}
+
 SessionData simulateSession(const Scene& scene, int index, const std::vector<int>& changed_ids,
                             int threads, const SimulateOptions& options) {
   const Session& session = index == 0 ? scene.reference : scene.current;
@@ -272,7 +306,7 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
   const int n = static_cast<int>(data.true_poses.size());
   data.frames.resize(static_cast<std::size_t>(n));
 
-  auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = std::chrono::steady_clock::now();
 #pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 1)
   for (int i = 0; i < n; ++i) {
     const std::uint64_t seed = (std::uint64_t{scene.seed} << 32) |
@@ -296,32 +330,8 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
   const detail::World changed_world(changed_prims);
   const Labeller labeller{world, changed_world, ids};
 
-  // Whole-scene cloud: built in the true frame, labelled there, written in the reported frame.
-  t0 = std::chrono::steady_clock::now();
-  std::vector<Vector3d> points = wholeCloud(data, scene.sensor.intrinsics, threads);
-  const std::vector<int> owners = labeller.owners(points, threads);
-  for (Vector3d& p : points) p = E * p;
-  fillClouds(points, owners, data.cloud, data.gt);
-  report("cloud " + std::to_string(data.cloud.size()) + " points, ground truth " +
-         std::to_string(data.gt.size()) + " points on " + std::to_string(ids.size()) +
-         " changed objects (" + fixed(secondsSince(t0), 1) + " s)");
-
-  // Reconstruction: fused with the reported poses, labelled in the true frame (E^-1).
-  t0 = std::chrono::steady_clock::now();
-  std::string stats;
-  detail::TsdfSurface surface =
-      reconstruct(data, scene.sensor, options.reconstruction_voxel, threads, stats);
-  std::vector<Vector3d> true_points(surface.points.size());
-  const Pose E_inv = E.inverse();
-  for (std::size_t i = 0; i < true_points.size(); ++i) true_points[i] = E_inv * surface.points[i];
-  fillClouds(surface.points, labeller.owners(true_points, threads), data.reconstruction,
-             data.reconstruction_gt);
-  data.mesh_triangles = std::move(surface.triangles);
-  report("reconstruction (" + fixed(options.reconstruction_voxel * 1000.0, 1) + " mm TSDF, " +
-         stats + ") " + std::to_string(data.reconstruction.size()) + " points, " +
-         std::to_string(data.mesh_triangles.size()) + " triangles, ground truth " +
-         std::to_string(data.reconstruction_gt.size()) + " points (" + fixed(secondsSince(t0), 1) +
-         " s)");
+  report(addWholeCloud(data, E, labeller, scene.sensor.intrinsics, threads));
+  report(addReconstruction(data, E, labeller, scene.sensor, options.reconstruction_voxel, threads));
   return data;
 }
 

@@ -329,9 +329,12 @@ TEST_F(FloorAndBox, WrittenFilesReadBack) {
   for (std::size_t i = 0; i < d.mesh_triangles.size(); i += 997) {
     const char* record = bytes.data() + first_face + 13 * i;
     ASSERT_EQ(record[0], 3);
-    std::array<std::int32_t, 3> t{};
-    std::memcpy(t.data(), record + 1, 12);  // the test hosts are little-endian
-    for (int k = 0; k < 3; ++k) EXPECT_EQ(static_cast<std::uint32_t>(t[k]), d.mesh_triangles[i][k]);
+    for (int k = 0; k < 3; ++k) {
+      std::uint32_t index = 0;  // little-endian int
+      for (int b = 3; b >= 0; --b)
+        index = (index << 8) | static_cast<unsigned char>(record[1 + 4 * k + b]);
+      EXPECT_EQ(index, d.mesh_triangles[i][static_cast<std::size_t>(k)]);
+    }
   }
 }
 
