@@ -65,6 +65,7 @@ const std::vector<Param>& params() {
       {"delta_blob", &Config::delta_blob},
       {"plane_merge_extent_gap", &Config::plane_merge_extent_gap},
       {"plane_merge_coplanar", &Config::plane_merge_coplanar},
+      {"plane_min_extent", &Config::plane_min_extent},
       {"ransac_max_samples", &Config::ransac_max_samples},
       {"track_pixel_stride", &Config::track_pixel_stride},
       {"plane_reservoir_size", &Config::plane_reservoir_size},

@@ -4,6 +4,7 @@
 // evaluateChanges from their detect-format outputs; DIR/comparison.md and DIR/comparison.json.
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -161,6 +162,19 @@ constexpr double kMaxDriftDeg = 1.0;  // rotation about the vertical at the larg
 constexpr std::uint32_t kSeed0 = 1000;
 constexpr int kSuiteFrames = 12;  // frames per session (a full orbit, one view every 30 degrees)
 
+/// The preset's scene for `seed`, or for seed + 100, + 200, ... (updated) when the change does not
+/// fit that layout.
+sim::Scene suiteScene(const std::string& preset, const sim::PresetOptions& opt,
+                      std::uint32_t& seed) {
+  for (int attempt = 0;; ++attempt, seed += 100) {
+    try {
+      return sim::makePreset(preset, seed, opt);
+    } catch (const Error&) {
+      if (attempt == 9) throw;
+    }
+  }
+}
+
 std::vector<PairRecord> runSimulated(const std::string& root, const BenchArgs& args) {
   std::vector<PairRecord> out;
   for (int k = 0; k < args.sim_pairs; ++k) {
@@ -171,16 +185,8 @@ std::vector<PairRecord> runSimulated(const std::string& root, const BenchArgs& a
     opt.localisation_translation = f * kMaxDrift;
     opt.localisation_rotation_deg = f * kMaxDriftDeg;
     opt.frames = args.frames > 0 ? args.frames : kSuiteFrames;
-    sim::Scene scene;
     std::uint32_t seed = kSeed0 + static_cast<std::uint32_t>(k);
-    for (int attempt = 0;; ++attempt, seed += 100) {  // a layout where the change fits
-      try {
-        scene = sim::makePreset("tabletop", seed, opt);
-        break;
-      } catch (const Error&) {
-        if (attempt == 9) throw;
-      }
-    }
+    const sim::Scene scene = suiteScene("tabletop", opt, seed);
     const auto t0 = Clock::now();
     const sim::Simulation s = sim::simulate(scene);
     const double sim_ms = msSince(t0);
@@ -198,6 +204,70 @@ std::vector<PairRecord> runSimulated(const std::string& root, const BenchArgs& a
                   args.sim_pairs, name, seed, sim_ms / 1000.0);
     logPair(label, rec);
     out.push_back(std::move(rec));
+  }
+  return out;
+}
+
+// ---- simulated room pairs -----------------------------------------------------------------------
+
+constexpr std::uint32_t kRoomSeed0 = 2000;
+constexpr int kRoomDriftSteps = 3;        // 0, 1.5, 3 cm
+constexpr double kRoomMaxDriftDeg = 2.0;  // rotation about the vertical at the largest drift
+
+/// The input forms of a room pair: the TUM streams, and the whole-scene clouds a mapper exports.
+const char* const kRoomForms[] = {"streams", "raw", "recon", "mesh"};
+
+/// One session of a room pair in `form`. The mesh is written to `dir` and read back as a user's
+/// file would be (its vertices; the faces are skipped).
+SessionInput roomInput(const std::string& form, const sim::SessionData& s, const std::string& dir,
+                       const std::string& label) {
+  if (form == "streams") return {s.cloud, false, &s};
+  if (form == "raw") return {s.cloud, false, nullptr};
+  if (form == "recon") return {s.reconstruction, false, nullptr};
+  std::filesystem::create_directories(dir);
+  const std::string path = dir + "/" + label + "_mesh.ply";
+  io::writePlyMesh(path, s.reconstruction, s.mesh_triangles);
+  return {io::readSceneCloud(path), false, nullptr};
+}
+
+/// Room pairs (varied layouts of the room preset, every change kind, drift 0 to 3 cm and 0 to 2
+/// degrees), each run in every form of args.room_forms: form -> pairs.
+std::map<std::string, std::vector<PairRecord>> runRooms(const std::string& root,
+                                                        const BenchArgs& args) {
+  std::map<std::string, std::vector<PairRecord>> out;
+  for (int k = 0; k < args.room_pairs; ++k) {
+    const sim::ChangeKind kind = kKinds[k % kNumKinds];
+    const double f = static_cast<double>((k / kNumKinds) % kRoomDriftSteps) / (kRoomDriftSteps - 1);
+    sim::PresetOptions opt;
+    opt.changes = {kind};
+    opt.localisation_translation = f * kMaxDrift;
+    opt.localisation_rotation_deg = f * kRoomMaxDriftDeg;
+    opt.frames = args.frames;
+    std::uint32_t seed = kRoomSeed0 + static_cast<std::uint32_t>(k);
+    const sim::Scene scene = suiteScene("room", opt, seed);
+    const auto t0 = Clock::now();
+    const sim::Simulation s = sim::simulate(scene);
+    const double sim_ms = msSince(t0);
+    char name[64];
+    std::snprintf(name, sizeof name, "room%02d_%s_%.1fcm", k, sim::toString(kind),
+                  f * kMaxDrift * 100.0);
+    for (const std::string& form : args.room_forms) {
+      const std::string dir = root + "/" + form + "/" + name;
+      const bool recon = form == "recon" || form == "mesh";
+      const SessionInput ref = roomInput(form, s.reference, dir, "reference");
+      const SessionInput cur = roomInput(form, s.current, dir, "current");
+      PairRecord rec =
+          runPair(dir, ref, cur, recon ? s.reference.reconstruction_gt : s.reference.gt,
+                  recon ? s.current.reconstruction_gt : s.current.gt, args);
+      rec.name = name;
+      rec.kind = sim::toString(kind);
+      rec.drift = f * kMaxDrift;
+      char label[200];
+      std::snprintf(label, sizeof label, "room %d/%d %s %s (seed %u, simulated in %.1f s)", k + 1,
+                    args.room_pairs, form.c_str(), name, seed, sim_ms / 1000.0);
+      logPair(label, rec);
+      out[form].push_back(std::move(rec));
+    }
   }
   return out;
 }
@@ -394,11 +464,39 @@ json datasetJson(const std::vector<PairRecord>& pairs) {
   return j;
 }
 
+/// The room pairs' section of comparison.md: per input form, the table and the breakdown.
+std::string roomSection(const std::map<std::string, std::vector<PairRecord>>& rooms,
+                        const BenchArgs& args) {
+  if (rooms.empty()) return "";
+  std::ostringstream md;
+  md << "\n## Simulated room pairs (" << args.room_pairs << " per input form)\n\n"
+     << "`planesdf simulate --scene room` layouts (2 or 3 tables, some 3 to 6 cm apart in "
+        "height; a shelf of 3 to 5 boards against a wall; objects on tables, boards, the floor "
+        "and walls), seeds "
+     << kRoomSeed0
+     << " + pair index; kinds in turn as above; drift 0, 1.5, 3 cm with 0, 1, 2 degrees of yaw "
+        "about the room centre. Forms: `streams` the TUM frames; `raw` the accumulated frame "
+        "points (`reference.ply`); `recon` the frames fused into a whole-scene TSDF and exported "
+        "as surface points, no normals or viewpoints (`reference_recon.ply`); `mesh` the "
+        "vertices of its marching-cubes mesh read from a PLY with faces "
+        "(`reference_mesh.ply`). The baselines take the same cloud (OctoMap: the frames for "
+        "`streams`).\n";
+  for (const std::string& form : args.room_forms) {
+    const auto it = rooms.find(form);
+    if (it == rooms.end()) continue;
+    md << "\n### " << form << "\n\n" << table(it->second) << "\n" << breakdown(it->second);
+  }
+  return md.str();
+}
+
 }  // namespace
 
 int runSuite(const BenchArgs& args) {
-  if (args.sim_pairs < 0 || args.mosd_pairs < 0)
+  if (args.sim_pairs < 0 || args.mosd_pairs < 0 || args.room_pairs < 0)
     throw Error("--sim-pairs", "pair counts must not be negative");
+  for (const std::string& form : args.room_forms)
+    if (std::find(std::begin(kRoomForms), std::end(kRoomForms), form) == std::end(kRoomForms))
+      throw Error("--room-forms", "unknown form '" + form + "' (streams, raw, recon, mesh)");
   if (args.octomap_stride < 1) throw Error("--octomap-stride", "must be at least 1");
   std::error_code ec;
   std::filesystem::create_directories(args.suite, ec);
@@ -407,6 +505,7 @@ int runSuite(const BenchArgs& args) {
   const std::vector<PairRecord> simulated = runSimulated(args.suite + "/sim", args);
   const std::vector<PairRecord> mosd =
       args.mosd_pairs > 0 ? runMosd(args.suite + "/mosd", args) : std::vector<PairRecord>{};
+  const std::map<std::string, std::vector<PairRecord>> rooms = runRooms(args.suite + "/room", args);
 
   std::ostringstream md;
   md << "# Change detection comparison (planesdf bench --suite)\n\n"
@@ -429,7 +528,7 @@ int runSuite(const BenchArgs& args) {
                            : "\nBy change kind and by localisation drift (mean F1, mean W per "
                              "pair):\n\n" +
                                  breakdown(simulated))
-     << "\n## mOSD pairs (" << mosd.size() << ")\n\n"
+     << roomSection(rooms, args) << "\n## mOSD pairs (" << mosd.size() << ")\n\n"
      << "Single organised Kinect views; OctoMap inserts each cloud from its sensor origin.\n\n"
      << table(mosd);
 #ifndef PLANESDF_HAVE_OCTOMAP
@@ -438,6 +537,7 @@ int runSuite(const BenchArgs& args) {
   json j;
   j["simulated"] = datasetJson(simulated);
   j["mosd"] = datasetJson(mosd);
+  for (const auto& [form, pairs] : rooms) j["room_" + form] = datasetJson(pairs);
   j["tol"] = Config{}.voxel_size;
   j["octomap_stride"] = args.octomap_stride;
   j["seconds"] = msSince(t0) / 1000.0;

@@ -82,11 +82,14 @@ int runDetect(const DetectArgs& args);
 constexpr unsigned kBenchSeed = 7;
 
 struct BenchArgs {
-  int frames = 0;          ///< frames per session (0: the whole sequence; suite: 12)
-  std::string json;        ///< --json FILE
-  std::string suite;       ///< --suite DIR: the comparison suite instead of the benchmark
-  int sim_pairs = 35;      ///< suite: simulated pairs
-  int mosd_pairs = 21;     ///< suite: mOSD pairs (the first n of pairs.tsv)
+  int frames = 0;       ///< frames per session (0: the whole sequence; suite: 12)
+  std::string json;     ///< --json FILE
+  std::string suite;    ///< --suite DIR: the comparison suite instead of the benchmark
+  int sim_pairs = 35;   ///< suite: simulated pairs
+  int mosd_pairs = 21;  ///< suite: mOSD pairs (the first n of pairs.tsv)
+  int room_pairs = 21;  ///< suite: simulated room pairs
+  /// suite: the input forms each room pair runs in (streams, raw, recon, mesh)
+  std::vector<std::string> room_forms = {"streams", "raw", "recon", "mesh"};
   std::string mosd_dir;    ///< suite: folder with pairs.tsv
   int octomap_stride = 8;  ///< suite: pixel stride of simulated frames into OctoMap
   int reserve_mb = 128;    ///< block memory each tabletop map reserves before fusing (MiB)

@@ -138,6 +138,12 @@ int main(int argc, char** argv) {
                     "Run the comparison suite and write OUT_DIR/comparison.md and .json");
   bench->add_option("--sim-pairs", bench_args.sim_pairs, "Suite: simulated pairs")
       ->capture_default_str();
+  bench->add_option("--room-pairs", bench_args.room_pairs, "Suite: simulated room pairs")
+      ->check(CLI::NonNegativeNumber);
+  bench
+      ->add_option("--room-forms", bench_args.room_forms,
+                   "Suite: input forms of the room pairs (streams raw recon mesh)")
+      ->delimiter(',');
   bench->add_option("--mosd-pairs", bench_args.mosd_pairs, "Suite: mOSD pairs (first n)")
       ->capture_default_str();
   bench->add_option("--mosd", bench_args.mosd_dir, "Suite: the mOSD folder (holds pairs.tsv)")

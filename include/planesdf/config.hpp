@@ -19,10 +19,12 @@ struct Config {
 
   // --- plane detection, streams (per-frame RANSAC)
   // ------------------------------------------------
-  double ransac_inlier_dist = 0.015;     ///< m
-  double ransac_min_inlier_frac = 0.05;  ///< of the frame's valid points
+  double ransac_inlier_dist = 0.015;  ///< m
+  /// Of the frame's valid points: a shelf board scanned from 1.4 m fills 2-5 % of a frame
+  /// (plane_min_extent keeps the object faces this lets through from becoming planes).
+  double ransac_min_inlier_frac = 0.02;
   int ransac_iterations = 200;
-  int ransac_max_planes_per_frame = 6;
+  int ransac_max_planes_per_frame = 8;
   /// Merge a frame plane into a global plane when normals agree within this angle ...
   double plane_merge_angle_deg = 10.0;
   /// ... and offsets agree within this distance (m) ...
@@ -37,6 +39,12 @@ struct Config {
   /// a PlaneSDF fuses the whole (unbounded) band of its plane, so two coplanar planes would hold
   /// duplicate volumes; coplanar patches (a floor seen around a table) are one plane.
   double plane_merge_extent_gap = 1000.0;
+  /// Frame streams: a new global plane needs inliers spanning at least this much (m, the longer
+  /// side of their in-plane box) in the frame that starts it: shelf boards (0.8 m and wider) and
+  /// desks are planes, the faces of the objects on them (at most ~0.4 m) are not, whatever
+  /// fraction of a frame they fill. Later observations of any size merge into existing planes.
+  /// Whole clouds keep min_plane_support instead (design.md, "Planes").
+  double plane_min_extent = 0.5;
   /// Points RANSAC scores hypotheses on (a deterministic subsample of the frame's valid points).
   int ransac_max_samples = 2000;
   /// Inliers kept per global plane for refinement (a uniform reservoir sample; bounds memory).

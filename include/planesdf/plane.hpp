@@ -178,9 +178,10 @@ class PlaneTracker {
   /// Merges frame planes detected elsewhere (inlier indices refer to `points_world`), largest
   /// first, classified w.r.t. up() (when up is not fixed yet, the first observation's normal
   /// fixes it, as detectPlanesRansac does with cfg.up_auto). Returns the global id of each
-  /// observation (-1 for one without inliers).
+  /// observation (-1 for one without inliers, or one that would start a plane whose inliers span
+  /// less than `min_extent`, m: integrate passes cfg.plane_min_extent).
   std::vector<int> merge(const std::vector<PlaneObservation>& observations,
-                         const std::vector<Eigen::Vector3f>& points_world);
+                         const std::vector<Eigen::Vector3f>& points_world, double min_extent = 0.0);
 
   /// Replaces the tracker's state with `planes` (planes[i].id must be i) and, when given, the
   /// up axis: used when a saved map is loaded and keeps integrating. Inlier reservoirs start

@@ -555,16 +555,34 @@ CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
   return cp;
 }
 
+/// True when the extents of two parallel planes overlap, seen along the normal of `a`.
+bool extentsOverlap(const Plane& a, const Plane& b) {
+  Eigen::AlignedBox2d carried;
+  for (int k = 0; k < 4; ++k) {
+    const Eigen::Vector2d c = b.extent.corner(static_cast<Eigen::AlignedBox2d::CornerType>(k));
+    carried.extend(a.toLocal(b.toWorld(Eigen::Vector3d(c.x(), c.y(), 0.0))).head<2>());
+  }
+  return !carried.intersection(a.extent).isEmpty();
+}
+
 /// What stands on a horizontal plane of the map is that plane's object, not this plane's: cells
-/// whose surface lies in the band of a horizontal plane `supports` (within its extent grown by
-/// cfg.support_margin) that is nearer below the surface than this plane, or that is this
-/// plane's when this one is vertical (objects rest on horizontal surfaces: a shelf's boards and
-/// what stands on them in the band of the wall behind, a box on the floor by a wall, a desk and
-/// its objects a few cm above a lower desk's plane), are unknown here. design.md, "Ownership".
-void leaveToSupports(const Plane& plane, const std::vector<const Plane*>& supports,
+/// whose surface lies in the band of a horizontal plane of `supports` (within its extent grown by
+/// cfg.support_margin) are unknown here when this plane is room structure (vertical, at least
+/// kStructureMinExtent long: objects rest on horizontal surfaces, so a shelf's boards and what
+/// stands on them in the band of the wall behind, or a box on the floor by a wall, are theirs),
+/// or when this plane is horizontal and that one is a separate surface above it (a desk and its
+/// objects a few cm above a lower desk's plane; not a box's top on this table). design.md,
+/// "Ownership".
+void leaveToSupports(const Plane& plane, const std::vector<const Plane*>& all_supports,
                      const Config& cfg, HeightMap& hm) {
-  if (supports.empty()) return;
   const bool vertical = plane.orientation == Plane::Orientation::Vertical;
+  if (vertical && !(plane.extent.sizes().maxCoeff() >= kStructureMinExtent)) return;
+  std::vector<const Plane*> supports;
+  for (const Plane* q : all_supports)
+    if (vertical || (q->signedDistance(plane.toWorld(Eigen::Vector3d::Zero())) < 0.0 &&
+                     !extentsOverlap(plane, *q)))
+      supports.push_back(q);
+  if (supports.empty()) return;
   for (int y = 0; y < hm.height; ++y)
     for (int x = 0; x < hm.width; ++x) {
       const float h = hm.at(x, y);
@@ -574,7 +592,6 @@ void leaveToSupports(const Plane& plane, const std::vector<const Plane*>& suppor
       for (const Plane* q : supports) {
         const double sd = q->signedDistance(p);
         if (sd < -kOtherPlaneDistance || sd > cfg.fuse_band) continue;
-        if (!vertical && !(sd < h - kOtherPlaneDistance)) continue;  // not nearer than this one
         const Eigen::Vector2d l = q->toLocal(p).head<2>();
         const Eigen::AlignedBox2d ext(q->extent.min().array() - cfg.support_margin,
                                       q->extent.max().array() + cfg.support_margin);

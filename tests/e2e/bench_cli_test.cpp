@@ -94,7 +94,9 @@ void expectRates(const json& m, const std::string& what) {
 TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
   TempDir tmp;
   const std::string dir = tmp.file("suite");
-  const auto r = runCli("bench --suite '" + dir + "' --sim-pairs 2 --mosd-pairs 2 --mosd '" +
+  const auto r = runCli("bench --suite '" + dir +
+                        "' --sim-pairs 2 --room-pairs 1 --room-forms streams,mesh --mosd-pairs 2 "
+                        "--mosd '" +
                         planesdf::test::mosdDir() + "'");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   const json j = json::parse(planesdf::io::readFile(dir + "/comparison.json"));
@@ -103,9 +105,10 @@ TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
 #ifdef PLANESDF_TEST_HAVE_OCTOMAP
   methods.push_back("OctoMap");
 #endif
-  for (const char* set : {"simulated", "mosd"}) {
+  for (const char* set : {"simulated", "mosd", "room_streams", "room_mesh"}) {
     const json& d = j.at(set);
-    ASSERT_EQ(d.at("pairs").get<int>(), 2) << set;
+    const std::string kind(set);
+    ASSERT_EQ(d.at("pairs").get<int>(), kind.rfind("room", 0) == 0 ? 1 : 2) << set;
     for (const json& pair : d.at("per_pair")) {
       const std::string name = pair.at("name").get<std::string>();
       for (const std::string& m : methods) {
@@ -119,8 +122,11 @@ TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
         const std::string sub = m == "PlaneSDF"  ? "planesdf"
                                 : m == "OctoMap" ? "octomap"
                                                  : "point_distance";
-        const std::string base =
-            dir + "/" + (std::string(set) == "mosd" ? "mosd" : "sim") + "/" + name + "/" + sub;
+        const std::string folder = kind == "mosd"           ? "mosd"
+                                   : kind == "simulated"    ? "sim"
+                                   : kind == "room_streams" ? "room/streams"
+                                                            : "room/mesh";
+        const std::string base = dir + "/" + folder + "/" + name + "/" + sub;
         EXPECT_TRUE(std::filesystem::exists(base + "/removed_points.ply")) << base;
         EXPECT_TRUE(std::filesystem::exists(base + "/added_points.ply")) << base;
       }
