@@ -66,6 +66,7 @@ const std::vector<Param>& params() {
       {"plane_merge_extent_gap", &Config::plane_merge_extent_gap},
       {"plane_merge_coplanar", &Config::plane_merge_coplanar},
       {"plane_min_extent", &Config::plane_min_extent},
+      {"plane_min_width", &Config::plane_min_width},
       {"ransac_max_samples", &Config::ransac_max_samples},
       {"track_pixel_stride", &Config::track_pixel_stride},
       {"plane_reservoir_size", &Config::plane_reservoir_size},

@@ -22,7 +22,7 @@ struct Config {
   double ransac_inlier_dist = 0.015;  ///< m
   /// Of the frame's valid points: a shelf board scanned from 1.4 m fills 2-5 % of a frame
   /// (plane_min_extent keeps the object faces this lets through from becoming planes).
-  double ransac_min_inlier_frac = 0.02;
+  double ransac_min_inlier_frac = 0.03;
   int ransac_iterations = 200;
   int ransac_max_planes_per_frame = 8;
   /// Merge a frame plane into a global plane when normals agree within this angle ...
@@ -45,6 +45,9 @@ struct Config {
   /// fraction of a frame they fill. Later observations of any size merge into existing planes.
   /// Whole clouds keep min_plane_support instead (design.md, "Planes").
   double plane_min_extent = 0.5;
+  /// ... and at least this much along the shorter side (m): shelf boards are 0.25 m deep and more,
+  /// a table leg's face (5 cm) or a table top's edge (3 cm) is no support.
+  double plane_min_width = 0.12;
   /// Points RANSAC scores hypotheses on (a deterministic subsample of the frame's valid points).
   int ransac_max_samples = 2000;
   /// Inliers kept per global plane for refinement (a uniform reservoir sample; bounds memory).

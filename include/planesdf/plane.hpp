@@ -179,9 +179,11 @@ class PlaneTracker {
   /// first, classified w.r.t. up() (when up is not fixed yet, the first observation's normal
   /// fixes it, as detectPlanesRansac does with cfg.up_auto). Returns the global id of each
   /// observation (-1 for one without inliers, or one that would start a plane whose inliers span
-  /// less than `min_extent`, m: integrate passes cfg.plane_min_extent).
+  /// less than `min_extent` along the longer side of their in-plane box or `min_width` along the
+  /// shorter, m: integrate passes cfg.plane_min_extent and cfg.plane_min_width).
   std::vector<int> merge(const std::vector<PlaneObservation>& observations,
-                         const std::vector<Eigen::Vector3f>& points_world, double min_extent = 0.0);
+                         const std::vector<Eigen::Vector3f>& points_world, double min_extent = 0.0,
+                         double min_width = 0.0);
 
   /// Replaces the tracker's state with `planes` (planes[i].id must be i) and, when given, the
   /// up axis: used when a saved map is loaded and keeps integrating. Inlier reservoirs start

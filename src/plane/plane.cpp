@@ -153,6 +153,7 @@ void validatePlaneConfig(const Config& c) {
   require(c.plane_merge_extent_gap >= 0.0, "plane_merge_extent_gap must be >= 0");
   require(c.plane_merge_coplanar >= 0.0, "plane_merge_coplanar must be >= 0");
   require(c.plane_min_extent >= 0.0, "plane_min_extent must be >= 0");
+  require(c.plane_min_width >= 0.0, "plane_min_width must be >= 0");
   require(c.plane_reservoir_size >= 3, "plane_reservoir_size must be >= 3");
   require(c.normal_knn >= 3, "normal_knn must be >= 3");
   require(c.normal_window >= 0.0, "normal_window must be >= 0");

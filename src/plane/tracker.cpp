@@ -68,12 +68,12 @@ std::vector<int> PlaneTracker::integrate(const std::vector<Eigen::Vector3f>& poi
     up_ = all.front().plane.normal;  // largest plane, normal toward the sensor
   }
   return merge(detail::finishObservations(std::move(all), points_world, *up_, cfg_), points_world,
-               cfg_.plane_min_extent);
+               cfg_.plane_min_extent, cfg_.plane_min_width);
 }
 
 std::vector<int> PlaneTracker::merge(const std::vector<PlaneObservation>& observations,
                                      const std::vector<Eigen::Vector3f>& points_world,
-                                     double min_extent) {
+                                     double min_extent, double min_width) {
   std::vector<int> ids;
   for (const PlaneObservation& obs : observations) {
     if (obs.inliers.empty()) {
@@ -88,7 +88,8 @@ std::vector<int> PlaneTracker::merge(const std::vector<PlaneObservation>& observ
     if (match >= 0) {
       absorb(match, obs, points_world, obs_extent);
       ids.push_back(match);
-    } else if (obs.plane.extent.isEmpty() || obs.plane.extent.sizes().maxCoeff() >= min_extent) {
+    } else if (obs.plane.extent.isEmpty() || (obs.plane.extent.sizes().maxCoeff() >= min_extent &&
+                                              obs.plane.extent.sizes().minCoeff() >= min_width)) {
       ids.push_back(addPlane(obs, points_world));
     } else {
       ids.push_back(-1);  // an object's face, not a support
