@@ -57,6 +57,9 @@ struct SessionInput {
   PointCloud cloud;  ///< world frame
   bool camera_frame_organised = false;
   const sim::SessionData* frames = nullptr;  ///< simulated: frames + reported poses
+  /// False for a whole-scene cloud without a viewpoint: OctoMap has no rays to carve free space
+  /// with (and a ray per point from an invented origin would take hours on a room).
+  bool has_rays = true;
 };
 
 MethodRun score(const std::string& dir, const PointCloud& gt_ref, const PointCloud& gt_cur,
@@ -122,7 +125,7 @@ PairRecord runPair(const std::string& dir, const SessionInput& ref, const Sessio
     rec.runs[kPointDistance] = score(dir + "/point_distance", gt_ref, gt_cur, r.milliseconds, tol);
   }
 #ifdef PLANESDF_HAVE_OCTOMAP
-  {
+  if (ref.has_rays && cur.has_rays) {
     const auto t0 = Clock::now();
     const auto ta = buildTree(ref, cfg, args.octomap_stride);
     const auto tb = buildTree(cur, cfg, args.octomap_stride);
@@ -221,13 +224,13 @@ const char* const kRoomForms[] = {"streams", "raw", "recon", "mesh"};
 /// file would be (its vertices; the faces are skipped).
 SessionInput roomInput(const std::string& form, const sim::SessionData& s, const std::string& dir,
                        const std::string& label) {
-  if (form == "streams") return {s.cloud, false, &s};
-  if (form == "raw") return {s.cloud, false, nullptr};
-  if (form == "recon") return {s.reconstruction, false, nullptr};
+  if (form == "streams") return {s.cloud, false, &s, true};
+  if (form == "raw") return {s.cloud, false, nullptr, false};
+  if (form == "recon") return {s.reconstruction, false, nullptr, false};
   std::filesystem::create_directories(dir);
   const std::string path = dir + "/" + label + "_mesh.ply";
   io::writePlyMesh(path, s.reconstruction, s.mesh_triangles);
-  return {io::readSceneCloud(path), false, nullptr};
+  return {io::readSceneCloud(path), false, nullptr, false};
 }
 
 /// Room pairs (varied layouts of the room preset, every change kind, drift 0 to 3 cm and 0 to 2
@@ -367,6 +370,7 @@ std::string table(const std::vector<PairRecord>& pairs) {
      << "|---|---|---|---|---|---|---|\n";
   for (const std::string& m : methods()) {
     const Summary s = summarise(pairs, m);
+    if (s.pairs == 0) continue;  // not run on this input (OctoMap on clouds without viewpoints)
     char row[256];
     std::snprintf(row, sizeof row,
                   "| %s | %.2f±%.2f | %.2f±%.2f | %.2f±%.2f | %.2f (%d) | %.2f (%d) | %.2f |\n",
@@ -480,7 +484,7 @@ std::string roomSection(const std::map<std::string, std::vector<PairRecord>>& ro
         "as surface points, no normals or viewpoints (`reference_recon.ply`); `mesh` the "
         "vertices of its marching-cubes mesh read from a PLY with faces "
         "(`reference_mesh.ply`). The baselines take the same cloud (OctoMap: the frames for "
-        "`streams`).\n";
+        "`streams`; none for the clouds, which have no viewpoint to cast rays from).\n";
   for (const std::string& form : args.room_forms) {
     const auto it = rooms.find(form);
     if (it == rooms.end()) continue;

@@ -94,10 +94,11 @@ void expectRates(const json& m, const std::string& what) {
 TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
   TempDir tmp;
   const std::string dir = tmp.file("suite");
-  const auto r = runCli("bench --suite '" + dir +
-                        "' --sim-pairs 2 --room-pairs 1 --room-forms streams,mesh --mosd-pairs 2 "
-                        "--mosd '" +
-                        planesdf::test::mosdDir() + "'");
+  const auto r =
+      runCli("bench --suite '" + dir +
+             "' --sim-pairs 2 --room-pairs 1 --room-forms streams,mesh --frames 12 --mosd-pairs 2 "
+             "--mosd '" +
+             planesdf::test::mosdDir() + "'");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   const json j = json::parse(planesdf::io::readFile(dir + "/comparison.json"));
   const std::string md = planesdf::io::readFile(dir + "/comparison.md");
@@ -112,6 +113,10 @@ TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
     for (const json& pair : d.at("per_pair")) {
       const std::string name = pair.at("name").get<std::string>();
       for (const std::string& m : methods) {
+        if (kind == "room_mesh" && m == "OctoMap") {  // no viewpoint: no rays to carve with
+          EXPECT_FALSE(pair.at("methods").contains(m)) << name;
+          continue;
+        }
         ASSERT_TRUE(pair.at("methods").contains(m)) << name << " " << m;
         const json& e = pair.at("methods").at(m);
         expectRates(e, name + " " + m);
@@ -133,6 +138,7 @@ TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
     }
     for (const std::string& m : methods) {
       EXPECT_NE(md.find("| " + m + " |"), std::string::npos) << m;
+      if (kind == "room_mesh" && m == "OctoMap") continue;
       const json& s = d.at("summary").at(m);
       EXPECT_GE(s.at("f1").get<double>(), 0.0);
       EXPECT_LE(s.at("f1").get<double>(), 1.0);

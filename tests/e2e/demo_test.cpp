@@ -76,23 +76,19 @@ TEST(Demo, OtherSeedsRecoverTheirDriftDespiteAMovedObject) {
   }
 }
 
-TEST(Demo, RoomKeepsWallsFloorAndFarTablePlaneOutOfTheChanges) {
-  // The simulated room (seed 1: two tables merged into one plane, a shelf, four walls, an object
-  // hung on a wall). Before the wall-structure rule and the support limit of computePlaneMaps,
-  // the walls' noisy surfaces and the merged table plane's band across the room made 73 events
-  // (W 121, F1 0.03); then W 11, F1 0.10, the shelf (one object of the back wall's plane, with
-  // its back panel) reported as "replaced" with 0.65 M points. Blobs no longer grow into a large
-  // component they touch only a sliver of (Config::blob_min_overlap): now W 1, M 2, F1 0.92. The
-  // swap on the shelf's top board (no plane under it: M 2, its removed and its added object) is
-  // missed.
+TEST(Demo, RoomKeepsWallsShelfAndTableLegsOutOfTheChanges) {
+  // The simulated room of seed 1: desks at 0.719 and 0.754 m (two planes, not one tilted plane)
+  // and a coffee table, a shelf of 5 boards against a wall, objects on the floor and two walls,
+  // a 1 cm / 1 degree localisation error (corrected from the walls). design.md, "Rules beyond
+  // the paper": each rule removes wrong clusters of this scene (W 5 before them).
   TempDir tmp;
   const nlohmann::json j = runDemo("--scene room", tmp);
   ASSERT_FALSE(j.is_null());
   EXPECT_LE(j["wrong"].get<int>(), 2);
-  EXPECT_LE(j["missed"].get<int>(), 2);
-  EXPECT_GE(j["recall"].get<double>(), 0.8);
-  EXPECT_GE(j["precision"].get<double>(), 0.85);
-  EXPECT_GE(j["f1"].get<double>(), 0.85);
+  EXPECT_LE(j["missed"].get<int>(), 1);
+  EXPECT_GE(j["recall"].get<double>(), 0.9);
+  EXPECT_GE(j["precision"].get<double>(), 0.7);
+  EXPECT_GE(j["f1"].get<double>(), 0.8);
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <functional>
 #include <limits>
+#include <map>
 #include <sstream>
 #include <thread>
 
@@ -636,3 +637,66 @@ TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
 }
 
 }  // namespace
+
+namespace {
+
+/// A bare room corner as an unorganised cloud (2 cm grid): a 4 x 4 m floor and the two walls at
+/// x = 2 and y = 2, 2 m high.
+planesdf::PointCloud roomCorner(const planesdf::Pose& T) {
+  planesdf::PointCloud c;
+  const auto add = [&](double x, double y, double z) {
+    c.points.push_back((T * Eigen::Vector3d(x, y, z)).cast<float>());
+  };
+  for (double a = -2.0; a < 2.0; a += 0.02) {
+    for (double b = -2.0; b < 2.0; b += 0.02) add(a, b, 0.0);
+    for (double z = 0.02; z < 2.0; z += 0.02) {
+      add(2.0, a, z);
+      add(a, 2.0, z);
+    }
+  }
+  c.width = static_cast<std::uint32_t>(c.points.size());
+  return c;
+}
+
+}  // namespace
+
+TEST(SessionCorrection, WallsGiveTheRotationAndTheShiftOfTheDrift) {
+  // The current session sees the same corner through a 2 degree / (2, -1.5) cm localisation
+  // error: the walls' normals fix the rotation, their offsets the shift across each wall.
+  const Pose E = Eigen::Translation3d(0.02, -0.015, 0.0) *
+                 Eigen::AngleAxisd(2.0 * M_PI / 180.0, Eigen::Vector3d::UnitZ());
+  Config cfg;
+  const Map ref = Map::fromCloud(roomCorner(Pose::Identity()), cfg);
+  const Map cur = Map::fromCloud(roomCorner(E), cfg);
+  ASSERT_GE(ref.planes().size(), 3u);
+  const std::vector<PlaneMatch> matches = uniqueMatches(registerPlanes(ref, cur, cfg));
+  std::map<std::pair<bool, int>, PlaneMaps> cache;
+  const auto maps = [&](bool is_ref, int id) -> const PlaneMaps& {
+    auto it = cache.find({is_ref, id});
+    if (it == cache.end()) {
+      const Map& m = is_ref ? ref : cur;
+      it = cache
+               .emplace(std::make_pair(is_ref, id),
+                        computePlaneMaps(m.planes()[static_cast<std::size_t>(id)], m.planes(), cfg,
+                                         nullptr))
+               .first;
+    }
+    return it->second;
+  };
+  const SessionCorrection c = sessionCorrection(ref, cur, matches, maps, cfg);
+  ASSERT_TRUE(c.rigid);
+  const double yaw = std::atan2(c.motion.linear()(1, 0), c.motion.linear()(0, 0));
+  EXPECT_NEAR(yaw * 180.0 / M_PI, 2.0, 0.1);
+  // A point on each wall lands where the drift puts it, within the walls' fit (a few mm).
+  for (const Eigen::Vector3d& p : {Eigen::Vector3d(2.0, 0.5, 1.0), Eigen::Vector3d(-0.5, 2.0, 1.0)})
+    EXPECT_LT((c.motion * p - E * p).head<2>().norm(), 0.005) << p.transpose();
+  // Every pair's in-plane transform follows from it: a wall point maps onto its drifted place.
+  for (const PlaneMatch& m : matches) {
+    const PlaneMatch k = corrected(m, ref, cur, c);
+    const Plane& s = ref.planes()[static_cast<std::size_t>(m.source_id)].plane;
+    const Plane& t = cur.planes()[static_cast<std::size_t>(m.target_id)].plane;
+    const Eigen::Vector3d p = s.toWorld({0.3, 0.4, 0.0});
+    const Eigen::Vector3d q = t.toWorld(k.T_target_source_local * s.toLocal(p));
+    EXPECT_LT((q - E * p).norm(), 0.01) << "pair " << m.source_id << " -> " << m.target_id;
+  }
+}

@@ -453,6 +453,65 @@ TEST(PlaneTracker, MergesOnePlaneSeenInFiveFramesAndKeepsIdsStable) {
   }
 }
 
+/// A frame plane observation of the horizontal rectangle [x0, x1] x [y0, y1] at height z
+/// (sampled every 2 cm, appended to `points`).
+PlaneObservation horizontalPatch(std::vector<Eigen::Vector3f>& points, double x0, double x1,
+                                 double y0, double y1, double z) {
+  PlaneObservation o;
+  std::vector<Eigen::Vector3f> mine;
+  for (double x = x0; x <= x1 + 1e-9; x += 0.02)
+    for (double y = y0; y <= y1 + 1e-9; y += 0.02) {
+      o.inliers.push_back(static_cast<std::uint32_t>(points.size()));
+      points.emplace_back(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+      mine.push_back(points.back());
+    }
+  o.plane = makePlane({0, 0, 1}, -z, {x0, y0, z}, {0, 0, 1});
+  o.plane.extendExtent(mine);
+  o.plane.support = o.inliers.size();
+  return o;
+}
+
+TEST(PlaneTracker, PlanesAFewCentimetresApartMergeOnlyWhereConnected) {
+  Config cfg;
+  PlaneTracker tracker(cfg);
+  std::vector<Eigen::Vector3f> pts;
+  // Two desks 4 cm apart in height and 30 cm apart on the floor: two planes (one plane fitted to
+  // both would tilt). A third patch 3 cm above the second desk and touching it joins it; floor
+  // patches 2 m apart at the same height are one plane.
+  const std::vector<PlaneObservation> obs = {
+      horizontalPatch(pts, 0.0, 1.2, 0.0, 0.8, 0.72),     // desk A
+      horizontalPatch(pts, 1.5, 2.7, 0.0, 0.8, 0.76),     // desk B
+      horizontalPatch(pts, 2.72, 3.4, 0.0, 0.8, 0.79),    // touches B
+      horizontalPatch(pts, -2.0, 0.0, -2.0, -1.0, 0.0),   // floor
+      horizontalPatch(pts, 2.0, 4.0, -2.0, -1.0, 0.005),  // floor, far away, 5 mm higher
+  };
+  const std::vector<int> ids = tracker.merge(obs, pts);
+  ASSERT_EQ(ids.size(), 5u);
+  EXPECT_NE(ids[0], ids[1]);
+  EXPECT_EQ(ids[2], ids[1]);
+  EXPECT_EQ(ids[4], ids[3]);
+  EXPECT_EQ(tracker.planes().size(), 3u);
+  EXPECT_NEAR(tracker.plane(ids[0])->offset, -0.72, 1e-6);  // desk A untouched by B's points
+}
+
+TEST(PlaneTracker, ObjectFacesAndTableLegsStartNoPlane) {
+  Config cfg;
+  PlaneTracker tracker(cfg);
+  std::vector<Eigen::Vector3f> pts;
+  // A box top (30 x 20 cm), a board-like strip only 5 cm wide (a table leg's face seen as a
+  // plane) and a shelf board (0.9 x 0.3 m), with the stream thresholds of Config.
+  const std::vector<PlaneObservation> obs = {
+      horizontalPatch(pts, 0.0, 0.3, 0.0, 0.2, 0.9),
+      horizontalPatch(pts, 1.0, 1.7, 0.0, 0.05, 0.5),
+      horizontalPatch(pts, 2.0, 2.9, 0.0, 0.3, 1.1),
+  };
+  const std::vector<int> ids = tracker.merge(obs, pts, cfg.plane_min_extent, cfg.plane_min_width);
+  EXPECT_EQ(ids, (std::vector<int>{-1, -1, 0}));
+  // Without the minimum (whole clouds) each is a plane.
+  PlaneTracker whole(cfg);
+  EXPECT_EQ(whole.merge(obs, pts), (std::vector<int>{0, 1, 2}));
+}
+
 TEST(PlaneTracker, ReservoirIsBoundedAndUpAutoIsFixedByTheFirstFrame) {
   Config cfg;
   cfg.up_auto = true;
