@@ -565,57 +565,59 @@ bool extentsOverlap(const Plane& a, const Plane& b) {
   return !carried.intersection(a.extent).isEmpty();
 }
 
-/// What stands on a horizontal plane of the map is that plane's object, not this plane's: cells
-/// whose surface lies in the band of a horizontal plane of `supports` (within its extent grown by
-/// cfg.support_margin) are unknown here when this plane is room structure (vertical, at least
-/// kStructureMinExtent long: objects rest on horizontal surfaces, so a shelf's boards and what
-/// stands on them in the band of the wall behind, or a box on the floor by a wall, are theirs),
-/// or when this plane is horizontal and that one is a separate surface above it (a desk and its
-/// objects a few cm above a lower desk's plane; not a box's top on this table). design.md,
-/// "Ownership".
-void leaveToSupports(const Plane& plane, const std::vector<const Plane*>& all_supports,
-                     const Config& cfg, HeightMap& hm) {
+/// A part of a plane's band that another plane of the map claims: points at a height above
+/// `owner` in [lo, hi] whose in-plane position (owner's frame) lies in `box`.
+struct Claim {
+  const Plane* owner = nullptr;
+  double lo = 0.0, hi = 0.0;
+  Eigen::AlignedBox2d box;
+};
+
+Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
+  return {b.min().array() - margin, b.max().array() + margin};
+}
+
+/// What the other planes of the map claim of `plane`'s band (unknown there):
+///  * the surface of a non-parallel plane (a wall in a table's band, a table in a wall's band) is
+///    structure, within kOtherPlaneDistance of it; for room structure (a vertical plane at least
+///    kStructureMinExtent long) from kOtherPlaneBehind behind to kStructureFront in front;
+///  * what stands on a horizontal plane is that plane's object (design.md, "Ownership"): its
+///    whole band, within its extent grown by cfg.support_margin, when `plane` is room structure
+///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
+///    floor by a wall), or when `plane` is horizontal and that one is a separate surface above
+///    it (a desk a few cm above a lower desk's plane; not a box's top on this table).
+std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map_planes,
+                            const Config& cfg) {
+  const auto isStructure = [](const Plane& q) {
+    return q.orientation == Plane::Orientation::Vertical &&
+           q.extent.sizes().maxCoeff() >= kStructureMinExtent;
+  };
   const bool vertical = plane.orientation == Plane::Orientation::Vertical;
-  if (vertical && !(plane.extent.sizes().maxCoeff() >= kStructureMinExtent)) return;
-  std::vector<const Plane*> supports;
-  for (const Plane* q : all_supports)
-    if (vertical || (q->signedDistance(plane.toWorld(Eigen::Vector3d::Zero())) < 0.0 &&
-                     !extentsOverlap(plane, *q)))
-      supports.push_back(q);
-  if (supports.empty()) return;
-  for (int y = 0; y < hm.height; ++y)
-    for (int x = 0; x < hm.width; ++x) {
-      const float h = hm.at(x, y);
-      if (!(h > cfg.h_obj)) continue;
-      const Eigen::Vector2d uv = hm.cellCenter(x, y);
-      const Eigen::Vector3d p = plane.toWorld(Eigen::Vector3d(uv.x(), uv.y(), h));
-      for (const Plane* q : supports) {
-        const double sd = q->signedDistance(p);
-        if (sd < -kOtherPlaneDistance || sd > cfg.fuse_band) continue;
-        const Eigen::Vector2d l = q->toLocal(p).head<2>();
-        const Eigen::AlignedBox2d ext(q->extent.min().array() - cfg.support_margin,
-                                      q->extent.max().array() + cfg.support_margin);
-        if (ext.contains(l)) {
-          hm.at(x, y) = kUnobserved;
-          break;
-        }
-      }
+  std::vector<Claim> claims;
+  for (const PlaneSdf& ps : map_planes) {
+    const Plane& q = ps.plane;
+    if (q.id == plane.id || q.extent.isEmpty()) continue;
+    if (std::abs(q.normal.dot(plane.normal)) < kParallelPlaneCos) {
+      const bool structure = isStructure(q);
+      claims.push_back({&q, -(structure ? kOtherPlaneBehind : kOtherPlaneDistance),
+                        structure ? kStructureFront : kOtherPlaneDistance,
+                        grown(q.extent, kOtherPlaneMargin)});
     }
+    if (q.orientation != Plane::Orientation::Horizontal) continue;
+    const bool owns = vertical ? isStructure(plane)
+                               : q.signedDistance(plane.toWorld(Eigen::Vector3d::Zero())) < 0.0 &&
+                                     !extentsOverlap(plane, q);
+    if (owns)
+      claims.push_back(
+          {&q, -kOtherPlaneDistance, cfg.fuse_band, grown(q.extent, cfg.support_margin)});
+  }
+  return claims;
 }
 
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
                            const Config& cfg, const std::vector<Eigen::Vector3f>* points) {
   PlaneMaps m;
   m.heights = computeHeightMap(plane.volume, cfg);
-  // Surfaces of the other, non-parallel planes of the map (a wall in the table's band, the
-  // table in a wall's band) are structure, not objects: unknown on this plane.
-  std::vector<const Plane*> others, supports;
-  for (const PlaneSdf& q : map_planes) {
-    if (q.plane.id == plane.plane.id || q.plane.extent.isEmpty()) continue;
-    if (std::abs(q.plane.normal.dot(plane.plane.normal)) < kParallelPlaneCos)
-      others.push_back(&q.plane);
-    if (q.plane.orientation == Plane::Orientation::Horizontal) supports.push_back(&q.plane);
-  }
   HeightMap& hm = m.heights;
   // Support: the band is unbounded, but only what stands on the plane is its object; beyond its
   // extent (a table's band reaching the walls, a shelf across the room) it is unknown.
@@ -626,25 +628,18 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
       for (int x = 0; x < hm.width; ++x)
         if (!support.contains(hm.cellCenter(x, y))) hm.at(x, y) = kUnobserved;
   }
-  leaveToSupports(plane.plane, supports, cfg, hm);
-  if (!others.empty())
+  // What other planes of the map claim of this band is unknown here (claimsOn).
+  const std::vector<Claim> claims = claimsOn(plane.plane, map_planes, cfg);
+  if (!claims.empty())
     for (int y = 0; y < hm.height; ++y)
       for (int x = 0; x < hm.width; ++x) {
         const float h = hm.at(x, y);
         if (!(h > cfg.h_obj)) continue;
         const Eigen::Vector2d uv = hm.cellCenter(x, y);
         const Eigen::Vector3d p = plane.plane.toWorld(Eigen::Vector3d(uv.x(), uv.y(), h));
-        for (const Plane* q : others) {
-          const double sd = q->signedDistance(p);
-          const bool structure = q->orientation == Plane::Orientation::Vertical &&
-                                 q->extent.sizes().maxCoeff() >= kStructureMinExtent;
-          if (sd > (structure ? kStructureFront : kOtherPlaneDistance) ||
-              sd < -(structure ? kOtherPlaneBehind : kOtherPlaneDistance))
-            continue;
-          const Eigen::Vector3d l = q->toLocal(p);
-          const Eigen::AlignedBox2d ext(q->extent.min().array() - kOtherPlaneMargin,
-                                        q->extent.max().array() + kOtherPlaneMargin);
-          if (ext.contains(l.head<2>())) {
+        for (const Claim& c : claims) {
+          const double sd = c.owner->signedDistance(p);
+          if (sd >= c.lo && sd <= c.hi && c.box.contains(c.owner->toLocal(p).head<2>())) {
             hm.at(x, y) = kUnobserved;
             break;
           }
