@@ -50,6 +50,8 @@ const std::vector<Param>& params() {
       {"object_min_solidity", &Config::object_min_solidity},
       {"blob_min_overlap", &Config::blob_min_overlap},
       {"blob_large_area", &Config::blob_large_area},
+      {"roughness_tile", &Config::roughness_tile},
+      {"roughness_factor", &Config::roughness_factor},
       {"delta_n", &Config::delta_n},
       {"delta_d", &Config::delta_d},
       {"refine_inplane", &Config::refine_inplane},
@@ -185,6 +187,10 @@ void validateConfig(const Config& cfg, const std::string& what) {
   require(cfg.normal_knn >= 3 && cfg.normal_knn <= 1000, "normal_knn must be in [3, 1000]");
   require(cfg.min_change_cells >= 0 && cfg.dilation_cells >= 0,
           "min_change_cells and dilation_cells must be >= 0");
+  require(cfg.roughness_tile >= 0 && cfg.roughness_tile <= 4096,
+          "roughness_tile must be in [0, 4096]");
+  require(cfg.roughness_factor >= 0.0 && std::isfinite(cfg.roughness_factor),
+          "roughness_factor must be finite and >= 0");
 }
 
 }  // namespace planesdf

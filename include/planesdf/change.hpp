@@ -207,6 +207,8 @@ struct LazyCellPoints {
 struct PlaneMaps {
   HeightMap heights;
   ObjectMap objects;
+  RoughnessMap roughness;      ///< computeRoughness(heights)
+  int rim_cells = 0;           ///< lateral slack of the surfaces, cells (surfaceRimCells)
   std::uint64_t revision = 0;  ///< TsdfVolume::revision() they were computed at
   /// With computePlaneMaps given the map's points: the chunk boxes of those points (built on
   /// first use; comparePlanePair gathers a change's points from the chunks its region meets,
@@ -220,7 +222,14 @@ struct PlaneMaps {
 /// compares. With `points` (the map's points(), which must outlive the maps), the maps carry
 /// the points' chunk boxes and bandPoints() buckets them, each on first use, once.
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
-                           const Config& cfg, const std::vector<Eigen::Vector3f>* points = nullptr);
+                           const Config& cfg, const std::vector<Eigen::Vector3f>* points = nullptr,
+                           int rim_cells = 0);
+
+/// How many cells to each side a surface of `map` may sit from where the height map shows it:
+/// ceil(splat_radius_voxels) of the map's config for splatted maps (a splat writes its SDF over
+/// that lateral radius, and a reconstruction cloud samples its surface about once per voxel),
+/// 0 for maps fused from depth (zero crossings interpolated between rays).
+int surfaceRimCells(const Map& map);
 
 /// The band points of `maps` (of `plane`) by cell when computePlaneMaps was given `points`:
 /// bucketBandPoints on the first call (thread-safe; later calls and copies of `maps` share the

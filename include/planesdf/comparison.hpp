@@ -25,17 +25,32 @@ namespace planesdf {
 /// Slack (m) added to delta_h to absorb float rounding of the heights.
 constexpr double kHeightCompareTolerance = 1e-6;
 
+/// How far the two maps' surfaces can be trusted, for the height test: their roughness
+/// (Config::roughness_factor; a null map counts as roughness 0, the plain delta_h test) and the
+/// lateral slack, in cells, of surfaces placed only to within a cell or more (splatted clouds,
+/// surfaceRimCells).
+struct HeightTolerance {
+  const RoughnessMap* source = nullptr;
+  const RoughnessMap* target = nullptr;
+  int slack_cells = 0;
+};
+
 /// Paper eq. 2. Each source cell centre (u, v, H(x, y)) is mapped by `T_target_source_local`
 /// into the target plane frame; with (x', y') its continuous target cell coordinates (cell
 /// centres at integer + 0.5), the four target cells around it are (x0 + i, y0 + j), i, j in
 /// {0, 1}, x0 = floor(x' - 0.5), y0 = floor(y' - 0.5) (a point exactly on the centre of a last
 /// column / row cell takes the in-grid pair: the tie is resolved inward). Output on the source grid
-/// (1 = changed). `unknown`, when given, receives the unknown cells (same geometry). Throws
-/// planesdf::Error("config", ...) when delta_h is not positive and finite, and
-/// planesdf::Error("height map", ...) when a map's cell array does not match its size.
+/// (1 = changed). A source cell is changed when its height lies more than
+/// t = max(delta_h, roughness_factor * r) above or below the range of the four target heights
+/// (r the largest roughness of the source cell and the four target cells: `tol`; a height
+/// within the range lies on an edge between them) and no target cell within
+/// tol.slack_cells of the four is within t of it (the same surface one cell over). `unknown`, when
+/// given, receives the unknown cells (same geometry). Throws planesdf::Error("config", ...) when
+/// delta_h is not positive and finite, and planesdf::Error("height map", ...) when a map's cell
+/// array does not match its size.
 Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
                          const Pose& T_target_source_local, const Config& cfg,
-                         Mask2D* unknown = nullptr);
+                         Mask2D* unknown = nullptr, const HeightTolerance& tol = {});
 
 /// The paper's cleaning: removeSmallComponents(mask, cfg.min_change_cells) (8-connected), then
 /// dilate(…, cfg.dilation_cells). Throws planesdf::Error("config", ...) on negative values.
@@ -92,7 +107,8 @@ struct HeightChange {
 /// cells of freeSpaceEvidence join the raw mask before cleaning.
 HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
                                 const ObjectMap& src_objects, const Pose& T_target_source_local,
-                                const Config& cfg, const TsdfVolume* target_volume = nullptr);
+                                const Config& cfg, const TsdfVolume* target_volume = nullptr,
+                                const HeightTolerance& tol = {});
 
 /// Free-space evidence, beyond eq. 2 (which needs the target's height map, and a single view
 /// leaves the places behind objects unobserved there): an `unknown` source cell higher than

@@ -140,6 +140,13 @@ struct Config {
   /// change only on 3D evidence. blob_min_overlap = 0 always grows (DESIGN's blobs).
   double blob_min_overlap = 0.5;
   double blob_large_area = 0.1;  ///< m²
+  /// Noise-aware height test (docs/design.md, "rough surfaces"): a cell changes only when its
+  /// height differs by more than max(delta_h, roughness_factor * r), r the larger roughness of
+  /// the two maps there (computeRoughness over tiles of roughness_tile cells). A far wall fused
+  /// from depth noise of 1-2 cm, or reconstructed from it, is bumpy by that much in both
+  /// sessions at different places. roughness_tile = 0 keeps the plain delta_h test.
+  int roughness_tile = 16;
+  double roughness_factor = 3.0;
 
   // --- 3D validation ----------------------------------------------------------------------------
   int bins_theta = 5;

@@ -142,6 +142,34 @@ struct ObjectMap : GridGeometry {
 /// cell or a line one or two cells wide, with no 3x3 square, is none.
 ObjectMap computeObjectMap(const HeightMap& hm, const Config& cfg);
 
+/// Local roughness of a height map's surface: per square tile of `tile` cells, a robust scale
+/// (metres) of the height differences between observed cells `lag` cells apart, both at most
+/// `cap` high (objects taller than the noise stay out; the edges of lower ones are a minority of
+/// the pairs). A far or grazing surface fused from noisy depth, or reconstructed from it, is
+/// bumpy at a few cm; near surfaces are flat to a few mm. The change test scales its threshold
+/// with it (compareHeightMaps). Tiles with too few pairs have roughness 0.
+struct RoughnessMap {
+  int tile = 0;              ///< cells per tile side (0: empty map, roughness 0 everywhere)
+  int tiles_x = 0;           ///< tiles along x
+  int tiles_y = 0;           ///< tiles along y
+  std::vector<float> sigma;  ///< m, row-major over tiles
+  /// Roughness at cell (x, y) of the height map it was computed from (0 outside).
+  float atCell(int x, int y) const {
+    if (tile <= 0 || x < 0 || y < 0) return 0.0f;
+    const int tx = x / tile, ty = y / tile;
+    if (tx >= tiles_x || ty >= tiles_y) return 0.0f;
+    return sigma[static_cast<std::size_t>(ty) * static_cast<std::size_t>(tiles_x) +
+                 static_cast<std::size_t>(tx)];
+  }
+};
+
+/// The roughness of `hm` (cfg.roughness_tile cells per tile, lag 2 cells, cap 2 * cfg.delta_h):
+/// per tile, the 75th percentile of |h(a) - h(b)| over horizontal and vertical cell pairs
+/// (a, b) two cells apart inside the tile, both observed and at most the cap high, when at least
+/// a quarter of the tile's possible pairs qualify; else 0. cfg.roughness_tile = 0 gives an
+/// empty map (no scaling).
+RoughnessMap computeRoughness(const HeightMap& hm, const Config& cfg);
+
 // --- reusable 2D mask helpers -----------------------------------------------------------------
 
 /// A binary mask over a plane grid (0 = off, anything else = on).

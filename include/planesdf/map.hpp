@@ -138,6 +138,10 @@ class Map {
   Eigen::Vector3d up() const;
   /// Number of integrate() calls so far.
   std::uint64_t frames() const { return frames_; }
+  /// True once an unorganised cloud was fused (splatted along PCA normals): such surfaces are
+  /// placed only to within the splat radius, which the height comparison allows for
+  /// (surfaceRimCells). Saved with the map.
+  bool splatted() const { return splatted_; }
   /// Input points (world frame) that may belong to objects — at least h_obj/2 above some plane
   /// and inside its band: every one for fromCloud(), at most one per cfg.point_cell cell for
   /// frame streams. The change outputs report these points.
@@ -187,6 +191,7 @@ class Map {
   /// Map::reserveMemory's chunks, shared by the plane volumes (nullptr until then).
   std::shared_ptr<detail::HugePagePool> block_pool_;
   std::uint64_t frames_ = 0;
+  bool splatted_ = false;
 };
 
 }  // namespace planesdf

@@ -614,9 +614,15 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
   return claims;
 }
 
+int surfaceRimCells(const Map& map) {
+  return map.splatted() ? static_cast<int>(std::ceil(map.config().splat_radius_voxels)) : 0;
+}
+
 PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& map_planes,
-                           const Config& cfg, const std::vector<Eigen::Vector3f>* points) {
+                           const Config& cfg, const std::vector<Eigen::Vector3f>* points,
+                           int rim_cells) {
   PlaneMaps m;
+  m.rim_cells = rim_cells;
   m.heights = computeHeightMap(plane.volume, cfg);
   HeightMap& hm = m.heights;
   // Support: the band is unbounded, but only what stands on the plane is its object; beyond its
@@ -646,6 +652,7 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
         }
       }
   m.objects = computeObjectMap(m.heights, cfg);
+  m.roughness = computeRoughness(m.heights, cfg);
   m.revision = plane.volume.revision();
   if (points != nullptr) {
     m.points = std::make_shared<detail::LazyCellPoints>();
@@ -682,7 +689,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   if (refine_inplane)
     r.refinement = refineInPlane(hs, os, ht, ot, r.match.T_target_source_local, cfg);
   const Pose T = r.match.T_target_source_local;
-  r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume);
+  r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume,
+                                HeightTolerance{&src_maps.roughness, &tgt_maps.roughness,
+                                                std::max(src_maps.rim_cells, tgt_maps.rim_cells)});
   r.validations.clear();
   r.in_place.clear();
   r.validated = Mask2D::zeros(hs);
@@ -1288,8 +1297,9 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     auto& maps = ref ? rmaps : cmaps;
     const auto i = static_cast<std::size_t>(id);
     if (!done[i]) {
-      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg,
-                                 &(ref ? reference : current).points());
+      const Map& m = ref ? reference : current;
+      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg, &m.points(),
+                                 surfaceRimCells(m));
       done[i] = true;
     }
     return maps[i];
@@ -1328,8 +1338,9 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
     parallelFor(static_cast<int>(needed.size()), cfg.threads, [&](int k) {
       const auto [ref, id] = needed[static_cast<std::size_t>(k)];
       const auto i = static_cast<std::size_t>(id);
+      const Map& m = ref ? reference : current;
       (ref ? rmaps : cmaps)[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg,
-                                                  &(ref ? reference : current).points());
+                                                  &m.points(), surfaceRimCells(m));
     });
     for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
     // One chunk index of each map's points for all its planes' maps (built on first use).

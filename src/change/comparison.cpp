@@ -26,7 +26,8 @@ void checkHeights(const HeightMap& hm) {
 }  // namespace
 
 Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
-                         const Pose& T_target_source_local, const Config& cfg, Mask2D* unknown) {
+                         const Pose& T_target_source_local, const Config& cfg, Mask2D* unknown,
+                         const HeightTolerance& tol) {
   if (!(cfg.delta_h > 0.0) || !std::isfinite(cfg.delta_h)) {
     throw Error("config",
                 "delta_h must be positive and finite, got " + std::to_string(cfg.delta_h));
@@ -36,11 +37,14 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
   Mask2D changed = Mask2D::zeros(src.geometry());
   Mask2D unk = Mask2D::zeros(src.geometry());
   const double thr = cfg.delta_h + kHeightCompareTolerance;
+  const double k_rough = cfg.roughness_factor;
+  const int slack = std::max(0, tol.slack_cells);
   const bool tgt_ok = !tgt.empty() && tgt.cell_size > 0.0;
   const double inv = tgt_ok ? 1.0 / tgt.cell_size : 0.0;
   for (int y = 0; y < src.height; ++y) {
     for (int x = 0; x < src.width; ++x) {
       const float h = src.at(x, y);
+      const double src_rough = tol.source != nullptr ? tol.source->atCell(x, y) : 0.0;
       if (h == kUnobserved || !tgt_ok) {
         unk.set(x, y);
         continue;
@@ -61,8 +65,13 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
       // the pair inside the grid (the last column / row stays comparable with identity T).
       if (x0 + 1 >= tgt.width && fx - x0 < kCentreTieEps) --x0;
       if (y0 + 1 >= tgt.height && fy - y0 < kCentreTieEps) --y0;
+      // The 2x2 cells around the mapped centre must be observed, and a height within their
+      // range lies on an edge between them. A cell of the ring of `slack` cells around them
+      // that is as high is the same surface one cell over.
       bool any_unknown = false;
-      int within = 0;
+      float lo = std::numeric_limits<float>::infinity();
+      float hi = -lo;
+      double r = src_rough;
       for (int j = 0; j < 2 && !any_unknown; ++j) {
         for (int i = 0; i < 2; ++i) {
           const int tx = x0 + i;
@@ -71,16 +80,26 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
             any_unknown = true;
             break;
           }
-          const double diff =
-              std::abs(static_cast<double>(tgt.at(tx, ty)) - static_cast<double>(h));
-          if (diff <= thr) ++within;
+          lo = std::min(lo, tgt.at(tx, ty));
+          hi = std::max(hi, tgt.at(tx, ty));
+          if (tol.target != nullptr)
+            r = std::max(r, static_cast<double>(tol.target->atCell(tx, ty)));
         }
       }
       if (any_unknown) {
         unk.set(x, y);
-      } else if (within == 0) {
-        changed.set(x, y);
+        continue;
       }
+      const double t = std::max(thr, k_rough * r);
+      bool differs = h > hi + t || h < lo - t;
+      for (int j = -slack; j < 2 + slack && differs && slack > 0; ++j)
+        for (int i = -slack; i < 2 + slack && differs; ++i) {
+          const int tx = x0 + i;
+          const int ty = y0 + j;
+          if (!tgt.inBounds(tx, ty) || tgt.at(tx, ty) == kUnobserved) continue;
+          differs = std::abs(static_cast<double>(tgt.at(tx, ty)) - static_cast<double>(h)) > t;
+        }
+      if (differs) changed.set(x, y);
     }
   }
   if (unknown != nullptr) *unknown = std::move(unk);
@@ -210,9 +229,10 @@ Mask2D freeSpaceEvidence(const HeightMap& src, const Mask2D& unknown,
 
 HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
                                 const ObjectMap& src_objects, const Pose& T_target_source_local,
-                                const Config& cfg, const TsdfVolume* target_volume) {
+                                const Config& cfg, const TsdfVolume* target_volume,
+                                const HeightTolerance& tol) {
   HeightChange out;
-  out.raw = compareHeightMaps(src, tgt, T_target_source_local, cfg, &out.unknown);
+  out.raw = compareHeightMaps(src, tgt, T_target_source_local, cfg, &out.unknown, tol);
   if (target_volume != nullptr) {
     out.vacated = freeSpaceEvidence(src, out.unknown, *target_volume, T_target_source_local, cfg);
     for (std::size_t i = 0; i < out.raw.cells.size(); ++i)

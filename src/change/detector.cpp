@@ -41,7 +41,8 @@ ChangeDetector::ChangeDetector(Map&& reference, const Config& cfg)
     : reference_(std::move(reference)), cfg_(cfg) {
   validateConfig(cfg_, "config");
   for (const PlaneSdf& p : reference_.planes())
-    reference_maps_.push_back(computePlaneMaps(p, reference_.planes(), cfg_, &reference_.points()));
+    reference_maps_.push_back(computePlaneMaps(p, reference_.planes(), cfg_, &reference_.points(),
+                                               surfaceRimCells(reference_)));
 }
 
 void ChangeDetector::onEvent(Callback callback) {
@@ -67,7 +68,8 @@ UpdateStats ChangeDetector::update(const Map& current) {
     auto it = current_maps_.find(id);
     if (it == current_maps_.end() || it->second.maps.revision != p.volume.revision() ||
         it->second.num_planes != cp.size()) {
-      CurrentMaps m{computePlaneMaps(p, cp, cfg_, &current.points()), cp.size()};
+      CurrentMaps m{computePlaneMaps(p, cp, cfg_, &current.points(), surfaceRimCells(current)),
+                    cp.size()};
       it = current_maps_.insert_or_assign(id, std::move(m)).first;
     }
     return it->second.maps;

@@ -525,6 +525,7 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
     }
   } else {
     // No pixel grid: splat each point along its PCA normal.
+    splatted_ = true;
     const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);
     const bool has_sensor = sensorOrigin(world).has_value();
     for (auto& ps : planes_) {

@@ -1,6 +1,7 @@
 // Map save/load: a versioned little-endian binary format.
 //
-//   header  : magic "PSDFMAP\0" (8 bytes), u32 format version, u32 reserved (0),
+//   header  : magic "PSDFMAP\0" (8 bytes), u32 format version, u32 flags (bit 0: splatted;
+//             other bits 0; written 0 before the flag existed),
 //             u64 payload size
 //   payload : config as JSON (u32 length + bytes), u64 frames, u8 has_up + 3 f64 up,
 //             u32 plane count, then per plane: i32 id, 3 f64 normal, f64 offset,
@@ -36,6 +37,7 @@ constexpr char kMagic[8] = {'P', 'S', 'D', 'F', 'M', 'A', 'P', '\0'};
 constexpr std::uint32_t kVersion = 2;
 constexpr std::uint32_t kOldestReadableVersion = 1;  // same layout, byte-wise FNV-1a checksum
 constexpr std::size_t kHeaderSize = 8 + 4 + 4 + 8;
+constexpr std::uint32_t kFlagSplatted = 1;  ///< header flags: Map::splatted()
 constexpr std::size_t kBlockBytes = 3 * 4 + kTsdfBlockVoxels * 8;
 
 constexpr std::uint64_t kFnvOffset = 1469598103934665603ull;
@@ -217,7 +219,7 @@ std::string Map::serialize() const {
   Writer file;
   file.putBytes(kMagic, sizeof(kMagic));
   file.put<std::uint32_t>(kVersion);
-  file.put<std::uint32_t>(0);
+  file.put<std::uint32_t>(splatted_ ? kFlagSplatted : 0u);
   file.put<std::uint64_t>(w.out.size());
   file.out += w.out;
   file.put<std::uint64_t>(checksum64(w.out.data(), w.out.size()));
@@ -238,7 +240,7 @@ Map Map::deserializeBytes(const char* data, std::size_t size, const std::string&
                           " is not supported (this build reads versions " +
                           std::to_string(kOldestReadableVersion) + " to " +
                           std::to_string(kVersion) + ")");
-  head.get<std::uint32_t>("reserved");
+  const auto flags = head.get<std::uint32_t>("flags");
   const auto payload = head.get<std::uint64_t>("payload size");
   if (payload != size - kHeaderSize - 8)
     throw Error(name, "corrupt map: header declares " + std::to_string(payload) +
@@ -257,6 +259,7 @@ Map Map::deserializeBytes(const char* data, std::size_t size, const std::string&
   const Config cfg = parseConfigJson(cfg_json, name + " (embedded config)");
   Map m(cfg);
   m.frames_ = r.get<std::uint64_t>("frames");
+  m.splatted_ = (flags & kFlagSplatted) != 0;
   const bool has_up = r.get<std::uint8_t>("up flag") != 0;
   const Eigen::Vector3d up = r.getVec("up");
 

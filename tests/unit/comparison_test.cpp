@@ -181,6 +181,107 @@ TEST(HeightCompare, UsesTheFourCellsAroundTheProjectedPoint) {
   EXPECT_TRUE(compareHeightMaps(src, tgt, T, cfg).at(30, 30));
 }
 
+TEST(HeightCompare, AHeightBetweenTheFourTargetCellsLiesOnAnEdge) {
+  const Config cfg;
+  HeightMap src = render({});
+  HeightMap tgt = render({});
+  // Shifted by half a cell: source cell 30 maps between target cells 30 and 31, an edge from
+  // 0 to 10 cm; 5 cm lies on it. 15 cm is above both.
+  const Pose T = yawShift(0.0, 0.5 * kCell, 0.0);
+  src.at(30, 30) = 0.05f;
+  src.at(30, 40) = 0.15f;
+  for (int y : {30, 31, 40, 41}) tgt.at(31, y) = 0.1f;
+  const Mask2D raw = compareHeightMaps(src, tgt, T, cfg);
+  EXPECT_FALSE(raw.at(30, 30));
+  EXPECT_TRUE(raw.at(30, 40));
+}
+
+TEST(HeightCompare, SlackCellsExplainASurfaceOneCellOver) {
+  const Config cfg;
+  // A table leg 30 cm tall, placed further along x in the target (a splatted reconstruction puts
+  // its rim within a cell). With T = identity, source cell x sits on target cell x's centre: the
+  // 2x2 cells are x and x + 1, and one cell of slack adds x - 1 and x + 2.
+  const HeightMap src = render({{20, 20, 6, 6, 0.3f}});
+  const HeightMap tgt = render({{22, 20, 6, 6, 0.3f}});
+  const Mask2D plain = compareHeightMaps(src, tgt, Pose::Identity(), cfg);
+  EXPECT_TRUE(plain.at(20, 22));  // the rim the target lacks
+  const Mask2D slack =
+      compareHeightMaps(src, tgt, Pose::Identity(), cfg, nullptr, HeightTolerance{{}, {}, 1});
+  EXPECT_EQ(slack.count(), 0u);
+  // A leg moved by 5 cells stays a change, less the one cell of slack.
+  const HeightMap moved = render({{25, 20, 6, 6, 0.3f}});
+  const Mask2D far =
+      compareHeightMaps(src, moved, Pose::Identity(), cfg, nullptr, HeightTolerance{{}, {}, 1});
+  for (int x = 20; x < 23; ++x) EXPECT_TRUE(far.at(x, 22)) << x;
+  EXPECT_FALSE(far.at(23, 22));
+}
+
+/// `hm` with bumps 3x3 cells wide and up to `max_bump` high at random places over the columns
+/// [x0, x1): a far surface fused from noisy depth.
+void addBumps(HeightMap& hm, int x0, int x1, float max_bump, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_int_distribution<int> px(x0, x1 - 3), py(0, hm.height - 3);
+  std::uniform_real_distribution<float> height(0.3f * max_bump, max_bump);
+  for (int k = 0; k < (x1 - x0) * hm.height / 20; ++k) {
+    const int bx = px(rng), by = py(rng);
+    const float h = height(rng);
+    for (int y = by; y < by + 3; ++y)
+      for (int x = bx; x < bx + 3; ++x) hm.at(x, y) = std::max(hm.at(x, y), h);
+  }
+}
+
+TEST(Roughness, BumpyTilesAreRoughAndObjectsTallerThanTheNoiseAreNot) {
+  Config cfg;                                      // roughness_tile 16, cap 2 delta_h = 4 cm
+  HeightMap hm = render({{2, 2, 12, 12, 0.08f}});  // a box in the flat half
+  addBumps(hm, 32, kSize, 0.03f, 3);
+  const RoughnessMap r = computeRoughness(hm, cfg);
+  ASSERT_EQ(r.tiles_x, 4);
+  ASSERT_EQ(r.tiles_y, 4);
+  // Flat tiles, the box's included (its edges are above the cap): no roughness.
+  EXPECT_EQ(r.atCell(5, 5), 0.0f);
+  EXPECT_EQ(r.atCell(20, 40), 0.0f);
+  // Bumpy tiles: a fair part of the 1-3 cm bumps, never more than the largest bump.
+  for (int y : {5, 20, 40}) {
+    EXPECT_GT(r.atCell(40, y), 0.005f) << y;
+    EXPECT_LE(r.atCell(40, y), 0.03f) << y;
+  }
+  cfg.roughness_tile = 0;
+  EXPECT_EQ(computeRoughness(hm, cfg).tile, 0);
+  EXPECT_EQ(computeRoughness(hm, cfg).atCell(40, 5), 0.0f);
+}
+
+TEST(HeightCompare, BumpsOfNoiseInBothSessionsAreNoChangeButATallObjectIs) {
+  const Config cfg;
+  HeightMap src = render({});
+  HeightMap tgt = render({});
+  addBumps(src, 0, kSize, 0.03f, 11);
+  addBumps(tgt, 0, kSize, 0.03f, 12);
+  // Added in the source: 13 cm on bumps of at most 3 cm differs by more than 3 times any
+  // roughness (at most the largest bump) from every target cell.
+  for (int y = 20; y < 30; ++y)
+    for (int x = 20; x < 30; ++x) src.at(x, y) = 0.13f;
+  const RoughnessMap rs = computeRoughness(src, cfg);
+  const RoughnessMap rt = computeRoughness(tgt, cfg);
+  const Mask2D plain = cleanChangeMask(compareHeightMaps(src, tgt, Pose::Identity(), cfg), cfg);
+  const Mask2D aware = cleanChangeMask(
+      compareHeightMaps(src, tgt, Pose::Identity(), cfg, nullptr, HeightTolerance{&rs, &rt}), cfg);
+  std::size_t plain_off = 0, aware_off = 0;
+  for (int y = 0; y < kSize; ++y)
+    for (int x = 0; x < kSize; ++x) {
+      const bool in_box = x >= 19 && x <= 30 && y >= 19 && y <= 30;  // dilated by one cell
+      if (in_box) {
+        if (x >= 20 && x < 30 && y >= 20 && y < 30) {
+          EXPECT_TRUE(aware.at(x, y)) << x << " " << y;
+        }
+        continue;
+      }
+      plain_off += plain.at(x, y) ? 1 : 0;
+      aware_off += aware.at(x, y) ? 1 : 0;
+    }
+  EXPECT_GT(plain_off, 100u);  // the plain 2 cm test reports the noise
+  EXPECT_EQ(aware_off, 0u);
+}
+
 TEST(HeightCompare, BlobsGrowToWholeObjectComponent) {
   Config cfg;
   HeightMap src = render({{10, 10, 12, 4, 0.08f}, {10, 14, 4, 10, 0.08f}, {40, 40, 6, 6, 0.05f}});

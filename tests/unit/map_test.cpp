@@ -11,6 +11,7 @@
 #include <set>
 
 #include "analytic_scene.hpp"
+#include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/height_map.hpp"
 #include "planesdf/map.hpp"
@@ -347,6 +348,23 @@ TEST(Map, IntegrateReportsItsStageTimes) {
   EXPECT_GT(st.tracking_ms, 0.0);
   EXPECT_GT(st.fusion_ms, 0.0);
   EXPECT_LE(st.tracking_ms + st.points_ms + st.fusion_ms, st.milliseconds);
+}
+
+TEST(Map, AnUnorganisedCloudMarksTheMapSplattedAndTheMarkIsSaved) {
+  Map m = Map::deserialize(tableMap().serialize(), "mem");
+  EXPECT_FALSE(m.splatted());
+  EXPECT_EQ(surfaceRimCells(m), 0);
+  PointCloud cloud;
+  for (int i = 0; i < 2000; ++i)
+    cloud.points.emplace_back(0.001f * static_cast<float>(i % 50),
+                              0.001f * static_cast<float>(i / 50), 0.8f);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  m.integrate(cloud, Pose::Identity());
+  ASSERT_TRUE(m.splatted());
+  EXPECT_EQ(surfaceRimCells(m), 1);  // splat_radius_voxels = 1
+  const Map back = Map::deserialize(m.serialize(), "mem");
+  EXPECT_TRUE(back.splatted());
+  EXPECT_EQ(back.serialize(), m.serialize());
 }
 
 TEST(Map, BadFramesAreErrors) {
