@@ -112,7 +112,9 @@ int PlaneTracker::findMatch(const PlaneObservation& obs, const std::vector<Eigen
     if (boxGap(detail::extentOf(g, points, sample), g.extent) > cfg_.plane_merge_extent_gap) {
       continue;
     }
-    if (dist > cfg_.plane_merge_coplanar &&
+    // Apart from a few cm, or over another horizontal plane (the floor under a desk and a shelf
+    // board at the same height), only connected patches are one surface.
+    if ((dist > cfg_.plane_merge_coplanar || standsOnAnotherPlane(obs, centre)) &&
         !touches(tracks_[static_cast<std::size_t>(g.id)], g, points, sample))
       continue;
     best = g.id;
@@ -152,6 +154,18 @@ void PlaneTracker::absorb(int id, const PlaneObservation& obs,
   occupy(track, points, obs.inliers);
   track.since_refine += obs.inliers.size();
   maybeRefine(id);
+}
+
+bool PlaneTracker::standsOnAnotherPlane(const PlaneObservation& obs,
+                                        const Eigen::Vector3d& centre) const {
+  if (obs.plane.orientation != Plane::Orientation::Horizontal) return false;
+  const double min_cos = std::cos(cfg_.plane_merge_angle_deg * kPi / 180.0);
+  for (const Plane& low : planes_) {
+    if (low.normal.dot(obs.plane.normal) < min_cos) continue;
+    if (low.signedDistance(centre) <= cfg_.plane_merge_offset) continue;
+    if (low.extent.isEmpty() || low.extent.contains(low.toLocal(centre).head<2>())) return true;
+  }
+  return false;
 }
 
 bool PlaneTracker::touches(const Track& track, const Plane& plane,

@@ -494,6 +494,27 @@ TEST(PlaneTracker, PlanesAFewCentimetresApartMergeOnlyWhereConnected) {
   EXPECT_NEAR(tracker.plane(ids[0])->offset, -0.72, 1e-6);  // desk A untouched by B's points
 }
 
+TEST(PlaneTracker, ADeskAndABoardAtTheSameHeightOverTheFloorStayTwoPlanes) {
+  Config cfg;
+  PlaneTracker tracker(cfg);
+  std::vector<Eigen::Vector3f> pts;
+  // Over one floor, a desk and a shelf board 2 m away at heights 3 mm apart: two surfaces. A
+  // second patch of the desk touching the first joins it; far floor patches still merge.
+  const std::vector<PlaneObservation> obs = {
+      horizontalPatch(pts, -1.0, 4.0, -2.0, 2.0, 0.0),   // floor
+      horizontalPatch(pts, 0.0, 1.2, 0.0, 0.8, 0.750),   // desk
+      horizontalPatch(pts, 3.0, 3.9, 1.0, 1.3, 0.753),   // board
+      horizontalPatch(pts, 1.22, 1.6, 0.0, 0.8, 0.752),  // the desk's far end
+      horizontalPatch(pts, 6.0, 7.0, -2.0, 2.0, 0.002),  // floor beyond a wall gap
+  };
+  const std::vector<int> ids = tracker.merge(obs, pts);
+  ASSERT_EQ(ids.size(), 5u);
+  EXPECT_NE(ids[1], ids[2]);
+  EXPECT_EQ(ids[3], ids[1]);
+  EXPECT_EQ(ids[4], ids[0]);
+  EXPECT_EQ(tracker.planes().size(), 3u);
+}
+
 TEST(PlaneTracker, ObjectFacesAndTableLegsStartNoPlane) {
   Config cfg;
   PlaneTracker tracker(cfg);
