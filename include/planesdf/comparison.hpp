@@ -42,9 +42,9 @@ struct HeightTolerance {
 /// column / row cell takes the in-grid pair: the tie is resolved inward). Output on the source grid
 /// (1 = changed). A source cell is changed when its height lies more than
 /// t = max(delta_h, roughness_factor * r) above or below the range of the four target heights
-/// (r the largest roughness of the source cell and the four target cells: `tol`; a height
-/// within the range lies on an edge between them) and no target cell within
-/// tol.slack_cells of the four is within t of it (the same surface one cell over). `unknown`, when
+/// and of the observed target cells within tol.slack_cells of them (r the largest roughness of
+/// the source cell and those target cells: `tol`). A height within the range lies on an edge
+/// between them, or on a surface placed to within the slack. `unknown`, when
 /// given, receives the unknown cells (same geometry). Throws planesdf::Error("config", ...) when
 /// delta_h is not positive and finite, and planesdf::Error("height map", ...) when a map's cell
 /// array does not match its size.

@@ -74,6 +74,8 @@ constexpr double kOtherPlaneBehind = 0.10;
 constexpr double kStructureFront = 0.06;
 constexpr double kStructureMinExtent = 1.0;
 constexpr double kOtherPlaneMargin = 0.03;
+/// Slabs parallel to a plane (shelf boards, table tops) are thinner than this, m.
+constexpr double kMaxSlab = 0.05;
 
 using ColumnKey = std::pair<int, int>;
 
@@ -585,7 +587,9 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
 ///    whole band, within its extent grown by cfg.support_margin, when `plane` is room structure
 ///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
 ///    floor by a wall), or when `plane` is horizontal and that one is a separate surface above
-///    it (a desk a few cm above a lower desk's plane; not a box's top on this table).
+///    it (a desk a few cm above a lower desk's plane; not a box's top on this table);
+///  * the underside of a horizontal plane over `plane` just above its band (up to kMaxSlab
+///    below that plane), within that plane's extent: the next board of a shelf.
 std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map_planes,
                             const Config& cfg) {
   const auto isStructure = [](const Plane& q) {
@@ -604,6 +608,12 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
                         grown(q.extent, kOtherPlaneMargin)});
     }
     if (q.orientation != Plane::Orientation::Horizontal) continue;
+    // A slab just above the band (the next shelf board, a table top over a low one): its
+    // underside, up to kMaxSlab below it, reaches into the band; that plane compares it.
+    const double above = -q.signedDistance(plane.toWorld(Eigen::Vector3d::Zero()));
+    if (!vertical && above > cfg.fuse_band && above <= cfg.fuse_band + kMaxSlab &&
+        extentsOverlap(plane, q))
+      claims.push_back({&q, -kMaxSlab, kOtherPlaneDistance, grown(q.extent, kOtherPlaneMargin)});
     const bool owns = vertical ? isStructure(plane)
                                : q.signedDistance(plane.toWorld(Eigen::Vector3d::Zero())) < 0.0 &&
                                      !extentsOverlap(plane, q);

@@ -66,17 +66,18 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
       if (x0 + 1 >= tgt.width && fx - x0 < kCentreTieEps) --x0;
       if (y0 + 1 >= tgt.height && fy - y0 < kCentreTieEps) --y0;
       // The 2x2 cells around the mapped centre must be observed, and a height within their
-      // range lies on an edge between them. A cell of the ring of `slack` cells around them
-      // that is as high is the same surface one cell over.
+      // range lies on an edge between them. With `slack`, the observed cells of the ring around
+      // them widen the range: a surface placed to within that many cells.
       bool any_unknown = false;
       float lo = std::numeric_limits<float>::infinity();
       float hi = -lo;
       double r = src_rough;
-      for (int j = 0; j < 2 && !any_unknown; ++j) {
-        for (int i = 0; i < 2; ++i) {
+      for (int j = -slack; j < 2 + slack && !any_unknown; ++j) {
+        for (int i = -slack; i < 2 + slack; ++i) {
           const int tx = x0 + i;
           const int ty = y0 + j;
           if (!tgt.inBounds(tx, ty) || tgt.at(tx, ty) == kUnobserved) {
+            if (i < 0 || i > 1 || j < 0 || j > 1) continue;  // ring cell
             any_unknown = true;
             break;
           }
@@ -91,14 +92,7 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
         continue;
       }
       const double t = std::max(thr, k_rough * r);
-      bool differs = h > hi + t || h < lo - t;
-      for (int j = -slack; j < 2 + slack && differs && slack > 0; ++j)
-        for (int i = -slack; i < 2 + slack && differs; ++i) {
-          const int tx = x0 + i;
-          const int ty = y0 + j;
-          if (!tgt.inBounds(tx, ty) || tgt.at(tx, ty) == kUnobserved) continue;
-          differs = std::abs(static_cast<double>(tgt.at(tx, ty)) - static_cast<double>(h)) > t;
-        }
+      const bool differs = h > hi + t || h < lo - t;
       if (differs) changed.set(x, y);
     }
   }

@@ -143,6 +143,41 @@ void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
   }
 }
 
+/// Slabs (boards, table tops) are thinner than this, m.
+constexpr float kMaxSlab = 0.05f;
+
+/// The lower face of a slab parallel to the plane (a shelf board's or a table top's underside,
+/// seen from below): orientWithoutSensor turned it to face away from the plane like any top
+/// face, which would put a surface with free space above inside the slab. A facing-up point
+/// whose next point up its voxel column (nothing between) also faces up and lies 1.5 voxels to
+/// kMaxSlab above it is such a face: it faces down.
+void orientUndersides(const std::vector<Eigen::Vector3f>& pts_local,
+                      std::vector<Eigen::Vector3f>& normals_local, float voxel) {
+  std::unordered_map<std::uint64_t, std::vector<std::uint32_t>> columns;
+  const auto key = [&](const Eigen::Vector3f& p) {
+    const auto u = static_cast<std::int64_t>(std::floor(p.x() / voxel)) + (1 << 30);
+    const auto v = static_cast<std::int64_t>(std::floor(p.y() / voxel)) + (1 << 30);
+    return static_cast<std::uint64_t>(u) << 32 | static_cast<std::uint64_t>(v);
+  };
+  for (std::size_t i = 0; i < pts_local.size(); ++i)
+    columns[key(pts_local[i])].push_back(static_cast<std::uint32_t>(i));
+  std::vector<std::uint32_t> flip;
+  for (auto& [k, ids] : columns) {
+    if (ids.size() < 2) continue;
+    std::sort(ids.begin(), ids.end(), [&](std::uint32_t a, std::uint32_t b) {
+      return pts_local[a].z() < pts_local[b].z();
+    });
+    for (std::size_t j = 0; j + 1 < ids.size(); ++j) {
+      const std::uint32_t lo = ids[j], hi = ids[j + 1];
+      const float gap = pts_local[hi].z() - pts_local[lo].z();
+      if (normals_local[lo].z() >= 0.5f && normals_local[hi].z() >= 0.5f && gap >= 1.5f * voxel &&
+          gap <= kMaxSlab)
+        flip.push_back(lo);
+    }
+  }
+  for (const std::uint32_t i : flip) normals_local[i] = -normals_local[i];
+}
+
 /// Heights within a slack of a band pass the pre-test: kBandSlack plus kBandSlackPerMetre of
 /// the coordinates' and the offset's magnitudes, several times the rounding error of the
 /// single-precision dot product, so that it never drops a point the exact (double) test keeps.
@@ -536,12 +571,26 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
       for (std::size_t i = 0; i < world.points.size(); ++i) {
         if (!world.isValid(i) || !normals[i].allFinite()) continue;
         const Eigen::Vector3f q = R * world.points[i] + t;
-        if (q.z() < -cfg_.below_band || q.z() > cfg_.fuse_band) continue;
+        // A slab's top face just above the band tells its underside in the band (orientUndersides).
+        const double reach = has_sensor ? 0.0 : kMaxSlab;
+        if (q.z() < -cfg_.below_band || q.z() > cfg_.fuse_band + reach) continue;
         p_local.push_back(q);
         n_local.push_back(R * normals[i]);
       }
       if (p_local.empty()) continue;
-      if (!has_sensor) orientWithoutSensor(p_local, n_local);
+      if (!has_sensor) {
+        orientWithoutSensor(p_local, n_local);
+        orientUndersides(p_local, n_local, static_cast<float>(cfg_.voxel_size));
+        std::size_t kept = 0;
+        for (std::size_t i = 0; i < p_local.size(); ++i)
+          if (p_local[i].z() <= cfg_.fuse_band) {
+            p_local[kept] = p_local[i];
+            n_local[kept++] = n_local[i];
+          }
+        p_local.resize(kept);
+        n_local.resize(kept);
+        if (kept == 0) continue;
+      }
       const IntegrationResult r = integratePointsWithNormals(ps.volume, p_local, n_local, cfg_);
       addResult(stats, ps.plane.id, r);
     }
