@@ -7,6 +7,10 @@ namespace planesdf::detail {
 
 inline constexpr double kDegToRad = 3.14159265358979323846 / 180.0;
 
+/// Slabs parallel to a plane (shelf boards, table tops) are thinner than this, m: the reach of
+/// the underside rules of the splatting (map) and of the ownership claims (change).
+inline constexpr double kMaxSlabThickness = 0.05;
+
 /// floor(x) as an int, without a libm call (the x86-64 baseline has no rounding instruction):
 /// truncate, minus one where that rounded up. The same value as static_cast<int>(std::floor(x))
 /// for |x| < 2^31; callers check the range (see floorToIntOr).

@@ -220,9 +220,11 @@ class PlaneTracker {
   void occupy(Track& track, const std::vector<Eigen::Vector3f>& points,
               const std::vector<std::uint32_t>& inliers) const;
   /// True when `obs` is horizontal and its inlier centre `centre` lies more than
-  /// plane_merge_offset above a parallel plane whose extent holds it: a desk or a board over the
-  /// floor, whose coplanar patches merge only where connected (the floor merges across gaps).
-  bool standsOnAnotherPlane(const PlaneObservation& obs, const Eigen::Vector3d& centre) const;
+  /// plane_merge_offset above a plane whose normal agrees within acos(min_cos) and whose extent
+  /// holds it: a desk or a board over the floor, whose coplanar patches merge only where
+  /// connected (the floor merges across gaps).
+  bool standsOnAnotherPlane(const PlaneObservation& obs, const Eigen::Vector3d& centre,
+                            double min_cos) const;
 
   int findMatch(const PlaneObservation& obs, const std::vector<Eigen::Vector3f>& points,
                 Eigen::AlignedBox2d& obs_extent) const;

@@ -74,8 +74,6 @@ constexpr double kOtherPlaneBehind = 0.10;
 constexpr double kStructureFront = 0.06;
 constexpr double kStructureMinExtent = 1.0;
 constexpr double kOtherPlaneMargin = 0.03;
-/// Slabs parallel to a plane (shelf boards, table tops) are thinner than this, m.
-constexpr double kMaxSlab = 0.05;
 
 using ColumnKey = std::pair<int, int>;
 
@@ -588,7 +586,8 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
 ///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
 ///    floor by a wall), or when `plane` is horizontal and that one is a separate surface above
 ///    it (a desk a few cm above a lower desk's plane; not a box's top on this table);
-///  * the underside of a horizontal plane over `plane` just above its band (up to kMaxSlab
+///  * the underside of a horizontal plane over `plane` just above its band (up to
+///  detail::kMaxSlabThickness
 ///    below that plane), within that plane's extent: the next board of a shelf.
 std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map_planes,
                             const Config& cfg) {
@@ -597,6 +596,7 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
            q.extent.sizes().maxCoeff() >= kStructureMinExtent;
   };
   const bool vertical = plane.orientation == Plane::Orientation::Vertical;
+  const Eigen::Vector3d origin = plane.toWorld(Eigen::Vector3d::Zero());
   std::vector<Claim> claims;
   for (const PlaneSdf& ps : map_planes) {
     const Plane& q = ps.plane;
@@ -609,14 +609,14 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
     }
     if (q.orientation != Plane::Orientation::Horizontal) continue;
     // A slab just above the band (the next shelf board, a table top over a low one): its
-    // underside, up to kMaxSlab below it, reaches into the band; that plane compares it.
-    const double above = -q.signedDistance(plane.toWorld(Eigen::Vector3d::Zero()));
-    if (!vertical && above > cfg.fuse_band && above <= cfg.fuse_band + kMaxSlab &&
+    // underside, up to detail::kMaxSlabThickness below it, reaches into the band; that plane
+    // compares it.
+    const double above = -q.signedDistance(origin);  // q's height over this plane's origin
+    if (!vertical && above > cfg.fuse_band && above <= cfg.fuse_band + detail::kMaxSlabThickness &&
         extentsOverlap(plane, q))
-      claims.push_back({&q, -kMaxSlab, kOtherPlaneDistance, grown(q.extent, kOtherPlaneMargin)});
-    const bool owns = vertical ? isStructure(plane)
-                               : q.signedDistance(plane.toWorld(Eigen::Vector3d::Zero())) < 0.0 &&
-                                     !extentsOverlap(plane, q);
+      claims.push_back({&q, -detail::kMaxSlabThickness, kOtherPlaneDistance,
+                        grown(q.extent, kOtherPlaneMargin)});
+    const bool owns = vertical ? isStructure(plane) : above > 0.0 && !extentsOverlap(plane, q);
     if (owns)
       claims.push_back(
           {&q, -kOtherPlaneDistance, cfg.fuse_band, grown(q.extent, cfg.support_margin)});

@@ -44,7 +44,6 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
   for (int y = 0; y < src.height; ++y) {
     for (int x = 0; x < src.width; ++x) {
       const float h = src.at(x, y);
-      const double src_rough = tol.source != nullptr ? tol.source->atCell(x, y) : 0.0;
       if (h == kUnobserved || !tgt_ok) {
         unk.set(x, y);
         continue;
@@ -71,7 +70,6 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
       bool any_unknown = false;
       float lo = std::numeric_limits<float>::infinity();
       float hi = -lo;
-      double r = src_rough;
       for (int j = -slack; j < 2 + slack && !any_unknown; ++j) {
         for (int i = -slack; i < 2 + slack; ++i) {
           const int tx = x0 + i;
@@ -83,17 +81,23 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
           }
           lo = std::min(lo, tgt.at(tx, ty));
           hi = std::max(hi, tgt.at(tx, ty));
-          if (tol.target != nullptr)
-            r = std::max(r, static_cast<double>(tol.target->atCell(tx, ty)));
         }
       }
       if (any_unknown) {
         unk.set(x, y);
         continue;
       }
+      if (h <= hi + thr && h >= lo - thr) continue;  // within delta_h: rough or not, unchanged
+      // Rough surfaces raise the threshold: the largest roughness of the source cell and of the
+      // target cells read above.
+      double r = tol.source != nullptr ? tol.source->atCell(x, y) : 0.0;
+      if (tol.target != nullptr)
+        for (int j = -slack; j < 2 + slack; ++j)
+          for (int i = -slack; i < 2 + slack; ++i)
+            if (tgt.inBounds(x0 + i, y0 + j) && tgt.at(x0 + i, y0 + j) != kUnobserved)
+              r = std::max(r, static_cast<double>(tol.target->atCell(x0 + i, y0 + j)));
       const double t = std::max(thr, k_rough * r);
-      const bool differs = h > hi + t || h < lo - t;
-      if (differs) changed.set(x, y);
+      if (h > hi + t || h < lo - t) changed.set(x, y);
     }
   }
   if (unknown != nullptr) *unknown = std::move(unk);

@@ -143,14 +143,11 @@ void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
   }
 }
 
-/// Slabs (boards, table tops) are thinner than this, m.
-constexpr float kMaxSlab = 0.05f;
-
 /// The lower face of a slab parallel to the plane (a shelf board's or a table top's underside,
 /// seen from below): orientWithoutSensor turned it to face away from the plane like any top
 /// face, which would put a surface with free space above inside the slab. A facing-up point
 /// whose next point up its voxel column (nothing between) also faces up and lies 1.5 voxels to
-/// kMaxSlab above it is such a face: it faces down.
+/// kMaxSlabThickness above it is such a face: it faces down.
 void orientUndersides(const std::vector<Eigen::Vector3f>& pts_local,
                       std::vector<Eigen::Vector3f>& normals_local, float voxel) {
   std::unordered_map<std::uint64_t, std::vector<std::uint32_t>> columns;
@@ -171,7 +168,7 @@ void orientUndersides(const std::vector<Eigen::Vector3f>& pts_local,
       const std::uint32_t lo = ids[j], hi = ids[j + 1];
       const float gap = pts_local[hi].z() - pts_local[lo].z();
       if (normals_local[lo].z() >= 0.5f && normals_local[hi].z() >= 0.5f && gap >= 1.5f * voxel &&
-          gap <= kMaxSlab)
+          gap <= static_cast<float>(detail::kMaxSlabThickness))
         flip.push_back(lo);
     }
   }
@@ -563,6 +560,9 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
     splatted_ = true;
     const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);
     const bool has_sensor = sensorOrigin(world).has_value();
+    // Without a sensor, a slab's top face just above the band tells its underside in the band
+    // (orientUndersides): gathered, then dropped before fusion.
+    const double top = cfg_.fuse_band + (has_sensor ? 0.0 : detail::kMaxSlabThickness);
     for (auto& ps : planes_) {
       const Pose to_local = ps.plane.frame().inverse();
       const Eigen::Matrix3f R = to_local.linear().cast<float>();
@@ -571,9 +571,7 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
       for (std::size_t i = 0; i < world.points.size(); ++i) {
         if (!world.isValid(i) || !normals[i].allFinite()) continue;
         const Eigen::Vector3f q = R * world.points[i] + t;
-        // A slab's top face just above the band tells its underside in the band (orientUndersides).
-        const double reach = has_sensor ? 0.0 : kMaxSlab;
-        if (q.z() < -cfg_.below_band || q.z() > cfg_.fuse_band + reach) continue;
+        if (q.z() < -cfg_.below_band || q.z() > top) continue;
         p_local.push_back(q);
         n_local.push_back(R * normals[i]);
       }

@@ -103,6 +103,7 @@ int PlaneTracker::findMatch(const PlaneObservation& obs, const std::vector<Eigen
   const double min_cos = std::cos(cfg_.plane_merge_angle_deg * kPi / 180.0);
   const std::vector<std::uint32_t> sample = detail::evenSubsample(obs.inliers, kMatchSample);
   const Eigen::Vector3d centre = detail::centroidOf(points, obs.inliers);
+  const bool over_plane = standsOnAnotherPlane(obs, centre, min_cos);
   int best = -1;
   double best_dist = std::numeric_limits<double>::infinity();
   for (const Plane& g : planes_) {
@@ -114,7 +115,7 @@ int PlaneTracker::findMatch(const PlaneObservation& obs, const std::vector<Eigen
     }
     // Apart from a few cm, or over another horizontal plane (the floor under a desk and a shelf
     // board at the same height), only connected patches are one surface.
-    if ((dist > cfg_.plane_merge_coplanar || standsOnAnotherPlane(obs, centre)) &&
+    if ((dist > cfg_.plane_merge_coplanar || over_plane) &&
         !touches(tracks_[static_cast<std::size_t>(g.id)], g, points, sample))
       continue;
     best = g.id;
@@ -156,10 +157,9 @@ void PlaneTracker::absorb(int id, const PlaneObservation& obs,
   maybeRefine(id);
 }
 
-bool PlaneTracker::standsOnAnotherPlane(const PlaneObservation& obs,
-                                        const Eigen::Vector3d& centre) const {
+bool PlaneTracker::standsOnAnotherPlane(const PlaneObservation& obs, const Eigen::Vector3d& centre,
+                                        double min_cos) const {
   if (obs.plane.orientation != Plane::Orientation::Horizontal) return false;
-  const double min_cos = std::cos(cfg_.plane_merge_angle_deg * kPi / 180.0);
   for (const Plane& low : planes_) {
     if (low.normal.dot(obs.plane.normal) < min_cos) continue;
     if (low.signedDistance(centre) <= cfg_.plane_merge_offset) continue;
