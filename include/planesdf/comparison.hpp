@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include <limits>
 #include <vector>
 
 #include "planesdf/config.hpp"
@@ -33,6 +34,18 @@ struct HeightTolerance {
   const RoughnessMap* source = nullptr;
   const RoughnessMap* target = nullptr;
   int slack_cells = 0;
+  /// How far above its surfaces the target map observed free space (m): a splat writes free
+  /// voxels only within the truncation in front of its point; depth fusion carves whole rays.
+  /// A source cell whose top was never seen from above (HeightMap::unseen_above), below
+  /// `band_top`, and more than this above the target is unknown: only the 2.5D premise, not an
+  /// observation, would make the target free there.
+  double free_reach = std::numeric_limits<double>::infinity();
+  double band_top = std::numeric_limits<double>::infinity();  ///< the fused band (m)
+  /// detectHeightChange: the sliver rule of changedBlobs holds for objects of any size, not
+  /// only those over Config::blob_large_area. Set for splatted maps: a whole-cloud
+  /// reconstruction places a static object's rim differently from other viewpoints, while a
+  /// change covers most of an object's footprint.
+  bool any_size_slivers = false;
 };
 
 /// Paper eq. 2. Each source cell centre (u, v, H(x, y)) is mapped by `T_target_source_local`

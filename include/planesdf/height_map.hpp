@@ -83,8 +83,14 @@ struct GridGeometry {
 ///  * kUnobserved (-1): nothing known.
 struct HeightMap : GridGeometry {
   std::vector<float> heights;  ///< row-major, numCells() values
+  /// Per cell, 1 when its height is the top face of an inside voxel under unobserved space
+  /// (rule 1 below): what lies above it was never seen. Empty: none is.
+  std::vector<std::uint8_t> unseen_above;
 
   float at(int x, int y) const { return heights[index(x, y)]; }
+  bool unseenAbove(int x, int y) const {
+    return !unseen_above.empty() && unseen_above[index(x, y)] != 0;
+  }
   float& at(int x, int y) { return heights[index(x, y)]; }
   bool observed(int x, int y) const { return at(x, y) != kUnobserved; }
   /// Number of cells that are not kUnobserved.

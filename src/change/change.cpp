@@ -73,6 +73,7 @@ constexpr double kOtherPlaneBehind = 0.10;
 /// In front of such a plane, its noisy surface reaches this far (m).
 constexpr double kStructureFront = 0.06;
 constexpr double kStructureMinExtent = 1.0;
+constexpr double kNoReachLimit = std::numeric_limits<double>::infinity();
 constexpr double kOtherPlaneMargin = 0.03;
 
 using ColumnKey = std::pair<int, int>;
@@ -585,7 +586,8 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
 ///    whole band, within its extent grown by cfg.support_margin, when `plane` is room structure
 ///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
 ///    floor by a wall), or when `plane` is horizontal and that one is a separate surface above
-///    it (a desk a few cm above a lower desk's plane; not a box's top on this table);
+///    it (a desk a few cm above a lower desk's plane; not a box's top on this table); with
+///    that plane's slab, up to detail::kMaxSlabThickness below it (a board's underside);
 ///  * the underside of a horizontal plane over `plane` just above its band (up to
 ///  detail::kMaxSlabThickness
 ///    below that plane), within that plane's extent: the next board of a shelf.
@@ -617,9 +619,9 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
       claims.push_back({&q, -detail::kMaxSlabThickness, kOtherPlaneDistance,
                         grown(q.extent, kOtherPlaneMargin)});
     const bool owns = vertical ? isStructure(plane) : above > 0.0 && !extentsOverlap(plane, q);
-    if (owns)
+    if (owns)  // with its slab: a board's underside, up to kMaxSlabThickness below its top
       claims.push_back(
-          {&q, -kOtherPlaneDistance, cfg.fuse_band, grown(q.extent, cfg.support_margin)});
+          {&q, -detail::kMaxSlabThickness, cfg.fuse_band, grown(q.extent, cfg.support_margin)});
   }
   return claims;
 }
@@ -699,9 +701,12 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   if (refine_inplane)
     r.refinement = refineInPlane(hs, os, ht, ot, r.match.T_target_source_local, cfg);
   const Pose T = r.match.T_target_source_local;
-  r.change = detectHeightChange(hs, ht, os, T, cfg, &tgt.volume,
-                                HeightTolerance{&src_maps.roughness, &tgt_maps.roughness,
-                                                std::max(src_maps.rim_cells, tgt_maps.rim_cells)});
+  r.change = detectHeightChange(
+      hs, ht, os, T, cfg, &tgt.volume,
+      HeightTolerance{&src_maps.roughness, &tgt_maps.roughness,
+                      std::max(src_maps.rim_cells, tgt_maps.rim_cells),
+                      tgt_maps.rim_cells > 0 ? tgt.volume.truncation() : kNoReachLimit,
+                      cfg.fuse_band, src_maps.rim_cells > 0 || tgt_maps.rim_cells > 0});
   r.validations.clear();
   r.in_place.clear();
   r.validated = Mask2D::zeros(hs);

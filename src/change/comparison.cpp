@@ -68,6 +68,7 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
       // range lies on an edge between them. With `slack`, the observed cells of the ring around
       // them widen the range: a surface placed to within that many cells.
       bool any_unknown = false;
+      bool open_above = false;  // a core cell's surface was never seen from above
       float lo = std::numeric_limits<float>::infinity();
       float hi = -lo;
       for (int j = -slack; j < 2 + slack && !any_unknown; ++j) {
@@ -79,6 +80,7 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
             any_unknown = true;
             break;
           }
+          if (i >= 0 && i <= 1 && j >= 0 && j <= 1) open_above |= tgt.unseenAbove(tx, ty);
           lo = std::min(lo, tgt.at(tx, ty));
           hi = std::max(hi, tgt.at(tx, ty));
         }
@@ -97,7 +99,16 @@ Mask2D compareHeightMaps(const HeightMap& src, const HeightMap& tgt,
             if (tgt.inBounds(x0 + i, y0 + j) && tgt.at(x0 + i, y0 + j) != kUnobserved)
               r = std::max(r, static_cast<double>(tol.target->atCell(x0 + i, y0 + j)));
       const double t = std::max(thr, k_rough * r);
-      if (h > hi + t || h < lo - t) changed.set(x, y);
+      // Splatted target maps observe free space only in front of their points (tol.free_reach):
+      // higher than a target surface whose free side was never observed, or higher than that
+      // reach on a source cell whose own top was never seen, is unknown, not a removal
+      // (design.md, "Unseen above").
+      const bool splat_target = std::isfinite(tol.free_reach);
+      const bool capped_source = src.unseenAbove(x, y) && h < tol.band_top - 2.0 * src.cell_size;
+      if (h > hi + t && splat_target && (open_above || (capped_source && h > hi + tol.free_reach)))
+        unk.set(x, y);
+      else if (h > hi + t || h < lo - t)
+        changed.set(x, y);
     }
   }
   if (unknown != nullptr) *unknown = std::move(unk);
@@ -241,7 +252,7 @@ HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
   out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
   out.cleaned = dilate(out.filtered, cfg.dilation_cells);
   out.blobs = changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap,
-                           largeObjectCells(cfg, src.cell_size));
+                           tol.any_size_slivers ? 1 : largeObjectCells(cfg, src.cell_size));
   out.blob_mask = Mask2D::zeros(src.geometry());
   for (const Blob& b : out.blobs) {
     for (const Eigen::Vector2i& c : b.cells) out.blob_mask.set(c.x(), c.y());

@@ -61,6 +61,7 @@ struct BlockColumnState {
   alignas(32) std::int32_t done[kColumnsPerBlock] = {};  // a surface was found: `value` final
   alignas(32) float value[kColumnsPerBlock] = {};
   alignas(32) float lowest_free[kColumnsPerBlock] = {};  // centre h of the lowest free voxel
+  alignas(32) std::int32_t unseen_above[kColumnsPerBlock] = {};  // `value` is a top face
   BlockColumnState() { std::fill(std::begin(lowest_free), std::end(lowest_free), kInfinity); }
 };
 
@@ -120,6 +121,7 @@ int walkLayerScalar(const TsdfVoxel* layer, int k, bool adjacent, float vs, floa
     const float found = top != 0 ? top_face : centre + vs * (sdf / (sdf - above));
     const std::int32_t hit = top | cross;
     cols.value[c] = hit != 0 ? (0.0f < found ? found : 0.0f) : cols.value[c];
+    cols.unseen_above[c] = hit != 0 ? top : cols.unseen_above[c];
     // Walking down, an observed voxel that is not inside is always the lowest free so far.
     const std::int32_t free_here = ~cols.done[c] & observed & ~le0;
     cols.lowest_free[c] = free_here != 0 ? centre : cols.lowest_free[c];
@@ -168,6 +170,8 @@ __attribute__((target("avx2"))) int walkLayerAvx2(const TsdfVoxel* layer, int k,
     const __m256 clamped = _mm256_and_ps(found, _mm256_cmp_ps(zero, found, _CMP_LT_OQ));
     const __m256 hit = _mm256_or_ps(top, cross);
     _mm256_store_ps(cols.value + c, _mm256_blendv_ps(_mm256_load_ps(cols.value + c), clamped, hit));
+    float* unseen = reinterpret_cast<float*>(static_cast<void*>(cols.unseen_above + c));
+    _mm256_store_ps(unseen, _mm256_blendv_ps(_mm256_load_ps(unseen), top, hit));
     const __m256 free_here = _mm256_andnot_ps(done, _mm256_andnot_ps(le0, observed));
     _mm256_store_ps(cols.lowest_free + c,
                     _mm256_blendv_ps(_mm256_load_ps(cols.lowest_free + c), centre, free_here));
@@ -215,7 +219,7 @@ bool skipUniformBlock(const TsdfBlock& b, int bz, float vs, float w_eff, bool av
 /// the voxel reads stream through memory, skipping uniform blocks whole; stops when every
 /// column has found its surface.
 void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float h_obj, bool avx2,
-                        float* out) {
+                        float* out, std::uint8_t* unseen_above) {
   // weight > 0 && weight >= w_min, as one comparison.
   const float w_eff = std::max(w_min, std::numeric_limits<float>::denorm_min());
   BlockColumnState cols;
@@ -239,8 +243,10 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
       above_k = k;
     }
   }
-  for (int c = 0; c < kColumnsPerBlock; ++c)
+  for (int c = 0; c < kColumnsPerBlock; ++c) {
     out[c] = cols.done[c] ? cols.value[c] : (cols.lowest_free[c] <= h_obj ? 0.0f : kUnobserved);
+    unseen_above[c] = cols.done[c] && cols.unseen_above[c] ? 1 : 0;
+  }
 }
 
 }  // namespace
@@ -265,6 +271,7 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
   hm.i0 = lo.x() * kTsdfBlockSide;
   hm.j0 = lo.y() * kTsdfBlockSide;
   hm.heights.assign(hm.numCells(), kUnobserved);
+  hm.unseen_above.assign(hm.numCells(), 0);
 
   const std::vector<BlockColumn> columns = bucketBlockColumns(vol, lo, hi);
   const int nbx = hi.x() - lo.x() + 1;
@@ -277,11 +284,16 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
     const BlockColumn& col = columns[static_cast<std::size_t>(c)];
     if (col.empty()) continue;
     std::array<float, kColumnsPerBlock> values;
-    blockColumnHeights(col, vs, cfg.w_min, static_cast<float>(cfg.h_obj), avx2, values.data());
+    std::array<std::uint8_t, kColumnsPerBlock> unseen;
+    blockColumnHeights(col, vs, cfg.w_min, static_cast<float>(cfg.h_obj), avx2, values.data(),
+                       unseen.data());
     const int x0 = (c % nbx) * kTsdfBlockSide;
     const int y0 = (c / nbx) * kTsdfBlockSide;
-    for (int ly = 0; ly < kTsdfBlockSide; ++ly)
+    for (int ly = 0; ly < kTsdfBlockSide; ++ly) {
       std::copy_n(values.begin() + ly * kTsdfBlockSide, kTsdfBlockSide, &hm.at(x0, y0 + ly));
+      std::copy_n(unseen.begin() + ly * kTsdfBlockSide, kTsdfBlockSide,
+                  &hm.unseen_above[hm.index(x0, y0 + ly)]);
+    }
   }
   return hm;
 }

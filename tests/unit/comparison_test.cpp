@@ -216,6 +216,67 @@ TEST(HeightCompare, SlackCellsExplainASurfaceOneCellOver) {
   EXPECT_FALSE(far.at(23, 22));
 }
 
+/// `hm` with the cells of `b` marked as never seen from above (HeightMap::unseen_above).
+void markUnseenAbove(HeightMap& hm, const Box& b) {
+  hm.unseen_above.assign(hm.numCells(), 0);
+  for (int y = b.y0; y < b.y0 + b.h; ++y)
+    for (int x = b.x0; x < b.x0 + b.w; ++x) hm.unseen_above[hm.index(x, y)] = 1;
+}
+
+std::size_t countSet(const Mask2D& m, const Box& b) {
+  std::size_t n = 0;
+  for (int y = b.y0; y < b.y0 + b.h; ++y)
+    for (int x = b.x0; x < b.x0 + b.w; ++x) n += m.at(x, y) ? 1 : 0;
+  return n;
+}
+
+TEST(HeightCompare, ASplattedTargetNeverSeenFromAboveIsUnknownAboveItsSurface) {
+  const Config cfg;
+  // The source has an 8 cm box; the target's surface there is the top face of inside voxels
+  // (a board seen edge-on from a wall's band): nothing above it was observed.
+  const HeightMap src = render({kObject});
+  HeightMap tgt = render({});
+  markUnseenAbove(tgt, kObject);
+  const Box core{kObject.x0 + 1, kObject.y0 + 1, kObject.w - 2, kObject.h - 2, 0.0f};
+  HeightTolerance splatted;
+  splatted.free_reach = 4 * kCell;  // free voxels only within the truncation
+  Mask2D unknown;
+  const Mask2D changed = compareHeightMaps(src, tgt, Pose::Identity(), cfg, &unknown, splatted);
+  EXPECT_EQ(countSet(changed, core), 0u);
+  EXPECT_EQ(countSet(unknown, core), static_cast<std::size_t>(core.w * core.h));
+  // Depth fusion carves whole rays: the same maps are a removal.
+  const Mask2D fused = compareHeightMaps(src, tgt, Pose::Identity(), cfg);
+  EXPECT_EQ(countSet(fused, core), static_cast<std::size_t>(core.w * core.h));
+  // The other way round the target is the lower map, whose cells are compared as before.
+  EXPECT_EQ(countSet(compareHeightMaps(tgt, src, Pose::Identity(), cfg, nullptr, splatted), core),
+            static_cast<std::size_t>(core.w * core.h));
+}
+
+TEST(HeightCompare, ASplattedSourceTopNeverSeenNeedsTheTargetsObservedFreeSpace) {
+  const Config cfg;  // fuse_band 0.3
+  HeightTolerance splatted;
+  splatted.free_reach = 0.05;
+  splatted.band_top = cfg.fuse_band;
+  const HeightMap tgt = render({});
+  const auto changedCells = [&](float height) {
+    HeightMap src = render({{25, 25, 10, 10, height}});
+    markUnseenAbove(src, {25, 25, 10, 10, 0.0f});
+    return countSet(compareHeightMaps(src, tgt, Pose::Identity(), cfg, nullptr, splatted),
+                    {25, 25, 10, 10, 0.0f});
+  };
+  // Noise of a far surface 8 cm out, inside voxels only: the target saw free space up to 5 cm.
+  EXPECT_EQ(changedCells(0.08f), 0u);
+  // Within the target's observed free space: a change.
+  EXPECT_EQ(changedCells(0.04f), 100u);
+  // At the band's top the object goes on beyond the band (a tall bottle): a change.
+  EXPECT_EQ(changedCells(0.3f), 100u);
+  // A top seen from above is a change at any height.
+  const HeightMap seen = render({{25, 25, 10, 10, 0.08f}});
+  EXPECT_EQ(countSet(compareHeightMaps(seen, tgt, Pose::Identity(), cfg, nullptr, splatted),
+                     {25, 25, 10, 10, 0.0f}),
+            100u);
+}
+
 /// `hm` with bumps 3x3 cells wide and up to `max_bump` high at random places over the columns
 /// [x0, x1): a far surface fused from noisy depth.
 void addBumps(HeightMap& hm, int x0, int x1, float max_bump, unsigned seed) {
@@ -379,6 +440,40 @@ TEST(HeightCompare, BlobsTakeOnlyTheChangedSliverOfALargeComponent) {
   EXPECT_FALSE(sliverOf(75, 1500, 0.05, 1000));
   EXPECT_FALSE(sliverOf(1, 999, 0.05, 1000));
   EXPECT_EQ(largeObjectCells(cfg, cfg.voxel_size), 2041);
+}
+
+TEST(HeightCompare, SplattedMapsKeepOnlyTheChangedSliverOfAnObjectOfAnySize) {
+  // A static 14x14-cell box (196 cells, far below blob_large_area) whose rim the target places
+  // 3 cells over: 3 columns of it change (42 cells, about a quarter after dilation).
+  const Config cfg;
+  const HeightMap src = render({{20, 20, 14, 14, 0.08f}});
+  const HeightMap tgt = render({{23, 20, 14, 14, 0.08f}});
+  const ObjectMap objects = computeObjectMap(src, cfg);
+  ASSERT_EQ(objects.numObjects(), 1);
+  const HeightChange fused = detectHeightChange(src, tgt, objects, Pose::Identity(), cfg);
+  ASSERT_EQ(fused.blobs.size(), 1u);
+  EXPECT_FALSE(fused.blobs[0].partial);
+  EXPECT_EQ(fused.blobs[0].area, 196);
+  HeightTolerance splatted;
+  splatted.any_size_slivers = true;
+  const HeightChange whole_cloud =
+      detectHeightChange(src, tgt, objects, Pose::Identity(), cfg, nullptr, splatted);
+  // The rim it lacks in front and the one it has behind: two slivers, less than half of it.
+  ASSERT_EQ(whole_cloud.blobs.size(), 2u);
+  int sliver_cells = 0;
+  for (const Blob& b : whole_cloud.blobs) {
+    EXPECT_TRUE(b.partial);
+    sliver_cells += b.area;
+  }
+  EXPECT_GE(sliver_cells, 42);
+  EXPECT_LT(sliver_cells, 196 / 2);
+  // A box moved by its width is a change of it whole, also in a whole cloud.
+  const HeightMap moved = render({{34, 20, 14, 14, 0.08f}});
+  const HeightChange far =
+      detectHeightChange(src, moved, objects, Pose::Identity(), cfg, nullptr, splatted);
+  ASSERT_EQ(far.blobs.size(), 1u);
+  EXPECT_FALSE(far.blobs[0].partial);
+  EXPECT_EQ(far.blobs[0].area, 196);
 }
 
 TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {

@@ -244,6 +244,13 @@ TEST(HeightMap, SplattedColumnsWithoutFreeSpaceUseTheTopFace) {
   EXPECT_EQ(cell(2), 0.0f);
   EXPECT_NEAR(cell(3), 16 * kVoxel, 1e-6);
   EXPECT_NEAR(cell(4), 11 * kVoxel, 1e-6);
+  // Top faces were never seen from above; the crossing was.
+  const auto unseen = [&](int i) { return hm.unseenAbove(i - hm.i0, -hm.j0); };
+  EXPECT_TRUE(unseen(0));
+  EXPECT_FALSE(unseen(1));
+  EXPECT_TRUE(unseen(2));
+  EXPECT_TRUE(unseen(3));
+  EXPECT_TRUE(unseen(4));
 
   // A splatted cloud (integratePointsWithNormals) of a box on a plane.
   Config scfg = cfg;
@@ -356,7 +363,10 @@ TEST(HeightMap, SameResultForAnyThreadCountAndFastOnATable) {
 
 /// The definition of computeHeightMap, written as plainly as possible: one column at a time,
 /// every voxel looked up by index.
-float referenceColumn(const TsdfVolume& vol, int i, int j, int k_lo, int k_hi, const Config& cfg) {
+/// `unseen` receives whether the height is a top face (HeightMap::unseen_above).
+float referenceColumn(const TsdfVolume& vol, int i, int j, int k_lo, int k_hi, const Config& cfg,
+                      bool* unseen) {
+  *unseen = false;
   const double vs = vol.voxelSize();
   const auto observed = [&](const TsdfVoxel* v) {
     return v != nullptr && v->weight > 0.0f && v->weight >= cfg.w_min;
@@ -370,7 +380,10 @@ float referenceColumn(const TsdfVolume& vol, int i, int j, int k_lo, int k_hi, c
       free_low = free_low || (k + 0.5) * vs <= cfg.h_obj;
       continue;
     }
-    if (!observed(up)) return static_cast<float>(std::max(0.0, (k + 1) * vs));
+    if (!observed(up)) {
+      *unseen = true;
+      return static_cast<float>(std::max(0.0, (k + 1) * vs));
+    }
     if (up->sdf > 0.0f)
       return static_cast<float>(std::max(0.0, (k + 0.5) * vs + vs * v->sdf / (v->sdf - up->sdf)));
   }
@@ -385,10 +398,14 @@ void expectMatchesReference(const TsdfVolume& vol, const Config& cfg, int stride
   int mismatches = 0;
   for (int y = 0; y < hm.height; y += stride)
     for (int x = 0; x < hm.width; x += stride) {
-      const float want = referenceColumn(vol, hm.i0 + x, hm.j0 + y, lo.z() * kTsdfBlockSide,
-                                         hi.z() * kTsdfBlockSide + kTsdfBlockSide - 1, cfg);
-      if (std::abs(hm.at(x, y) - want) > 1e-6f && ++mismatches < 10)
-        ADD_FAILURE() << "cell " << x << "," << y << ": " << hm.at(x, y) << " != " << want;
+      bool unseen = false;
+      const float want =
+          referenceColumn(vol, hm.i0 + x, hm.j0 + y, lo.z() * kTsdfBlockSide,
+                          hi.z() * kTsdfBlockSide + kTsdfBlockSide - 1, cfg, &unseen);
+      if ((std::abs(hm.at(x, y) - want) > 1e-6f || hm.unseenAbove(x, y) != unseen) &&
+          ++mismatches < 10)
+        ADD_FAILURE() << "cell " << x << "," << y << ": " << hm.at(x, y) << " != " << want
+                      << " or unseen above " << hm.unseenAbove(x, y) << " != " << unseen;
     }
   EXPECT_EQ(mismatches, 0);
 }
