@@ -626,6 +626,19 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
   return claims;
 }
 
+/// True when `blob`'s cells eroded by `cells` (square element) keep at least one cell.
+bool hasCore(const Blob& blob, int cells) {
+  GridGeometry g;
+  g.width = blob.bbox_max.x() - blob.bbox_min.x() + 1;
+  g.height = blob.bbox_max.y() - blob.bbox_min.y() + 1;
+  g.cell_size = 1.0;
+  if (g.width <= 2 * cells || g.height <= 2 * cells) return false;
+  Mask2D m = Mask2D::zeros(g);
+  for (const Eigen::Vector2i& c : blob.cells)
+    m.set(c.x() - blob.bbox_min.x(), c.y() - blob.bbox_min.y());
+  return erode(m, cells).count() > 0;
+}
+
 int surfaceRimCells(const Map& map) {
   return map.splatted() ? static_cast<int>(std::ceil(map.config().splat_radius_voxels)) : 0;
 }
@@ -726,6 +739,10 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   };
 
   const int large_cells = largeObjectCells(cfg, ht.cell_size);
+  const int rim_cells = std::max(src_maps.rim_cells, tgt_maps.rim_cells);
+  // How wide the rim of a static object can come out in a change mask of splatted maps: the
+  // surface's placement (rim_cells) plus the mask's dilation.
+  const int rim_width = rim_cells > 0 ? rim_cells + cfg.dilation_cells : 0;
   std::vector<CandidateChange> out;
   // (target cell, candidate) of each candidate's target region, for its points.
   std::vector<std::pair<std::size_t, std::size_t>> target_region_cells;
@@ -809,6 +826,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if ((blob.partial || blob.area < cfg.min_change_cells) &&
         val.verdict != BlobValidation::Verdict::Changed)
       continue;
+    // In a splatted map, a sliver no wider than a rim is a rim (design.md, "Slivers").
+    if (blob.partial && rim_width > 0 && !hasCore(blob, rim_width)) continue;
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
     reg.voxels = std::move(voxels);
