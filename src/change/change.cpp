@@ -589,8 +589,8 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
 ///    it (a desk a few cm above a lower desk's plane; not a box's top on this table); with
 ///    that plane's slab, up to detail::kMaxSlabThickness below it (a board's underside);
 ///  * the underside of a horizontal plane over `plane` just above its band (up to
-///  detail::kMaxSlabThickness
-///    below that plane), within that plane's extent: the next board of a shelf.
+///    detail::kMaxSlabThickness below that plane), within that plane's extent: the next board
+///    of a shelf.
 std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map_planes,
                             const Config& cfg) {
   const auto isStructure = [](const Plane& q) {
@@ -714,12 +714,13 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   if (refine_inplane)
     r.refinement = refineInPlane(hs, os, ht, ot, r.match.T_target_source_local, cfg);
   const Pose T = r.match.T_target_source_local;
+  // Nonzero when either map was splatted (surfaceRimCells).
+  const int rim_cells = std::max(src_maps.rim_cells, tgt_maps.rim_cells);
   r.change = detectHeightChange(
       hs, ht, os, T, cfg, &tgt.volume,
-      HeightTolerance{&src_maps.roughness, &tgt_maps.roughness,
-                      std::max(src_maps.rim_cells, tgt_maps.rim_cells),
+      HeightTolerance{&src_maps.roughness, &tgt_maps.roughness, rim_cells,
                       tgt_maps.rim_cells > 0 ? tgt.volume.truncation() : kNoReachLimit,
-                      cfg.fuse_band, src_maps.rim_cells > 0 || tgt_maps.rim_cells > 0});
+                      cfg.fuse_band, rim_cells > 0});
   r.validations.clear();
   r.in_place.clear();
   r.validated = Mask2D::zeros(hs);
@@ -739,7 +740,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   };
 
   const int large_cells = largeObjectCells(cfg, ht.cell_size);
-  const int rim_cells = std::max(src_maps.rim_cells, tgt_maps.rim_cells);
   // How wide the rim of a static object can come out in a change mask of splatted maps: the
   // surface's placement (rim_cells) plus the mask's dilation.
   const int rim_width = rim_cells > 0 ? rim_cells + cfg.dilation_cells : 0;
