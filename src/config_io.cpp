@@ -29,6 +29,8 @@ const std::vector<Param>& params() {
       {"plane_merge_angle_deg", &Config::plane_merge_angle_deg},
       {"plane_merge_offset", &Config::plane_merge_offset},
       {"normal_knn", &Config::normal_knn},
+      {"cloud_smooth_knn", &Config::cloud_smooth_knn},
+      {"cloud_outlier_sigma", &Config::cloud_outlier_sigma},
       {"vmf_lambda_deg", &Config::vmf_lambda_deg},
       {"offset_split", &Config::offset_split},
       {"min_plane_support", &Config::min_plane_support},
@@ -185,6 +187,10 @@ void validateConfig(const Config& cfg, const std::string& what) {
               cfg.ransac_min_inlier_frac > 0.0 && cfg.ransac_min_inlier_frac <= 1.0,
           "RANSAC parameters out of range");
   require(cfg.normal_knn >= 3 && cfg.normal_knn <= 1000, "normal_knn must be in [3, 1000]");
+  require(cfg.cloud_smooth_knn == 0 || (cfg.cloud_smooth_knn >= 3 && cfg.cloud_smooth_knn <= 1000),
+          "cloud_smooth_knn must be 0 or in [3, 1000]");
+  require(std::isfinite(cfg.cloud_outlier_sigma) && cfg.cloud_outlier_sigma >= 0.0,
+          "cloud_outlier_sigma must be >= 0");
   require(cfg.min_change_cells >= 0 && cfg.dilation_cells >= 0,
           "min_change_cells and dilation_cells must be >= 0");
   require(cfg.roughness_tile >= 0 && cfg.roughness_tile <= 4096,

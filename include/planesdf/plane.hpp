@@ -108,6 +108,15 @@ void validatePlaneConfig(const Config& cfg);
 
 // --- normals ------------------------------------------------------------------------------------
 
+/// Each valid point moved onto the least-squares plane of its cfg.cloud_smooth_knn nearest
+/// neighbours (itself included): a one-step moving-least-squares smoothing that collapses the
+/// depth noise of an accumulated cloud to about sigma / sqrt(k) while keeping a surface where it
+/// is. A point farther from that plane than cfg.cloud_outlier_sigma times the neighbours' RMS
+/// distance from it becomes NaN (when that factor is > 0). Invalid points and points with fewer
+/// than 3 neighbours are kept as they are; k = 0 copies. Parallel (cfg.threads).
+std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vector3f>& points,
+                                                  const Config& cfg);
+
 /// PCA normals, one per point (NaN for invalid points or too few neighbours). Unorganised clouds:
 /// the cfg.normal_knn nearest neighbours (hash-grid search). Organised clouds: an image window of
 /// about cfg.normal_window metres (integral images; blurred across depth edges, which shows up in

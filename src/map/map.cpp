@@ -532,6 +532,14 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   world.height = cloud.height;
   world.sensor_pose = cloud_to_world * cloud.sensor_pose;
 
+  // Unorganised clouds: planes and surfaces from the smoothed points (Config::cloud_smooth_knn);
+  // the change outputs keep the points as given.
+  std::vector<Eigen::Vector3f> given;
+  if (!cloud.isOrganized() && cfg_.cloud_smooth_knn > 0) {
+    given = world.points;
+    world.points = projectToLocalPlanes(given, cfg_);
+  }
+
   IntegrateStats created;
   const auto tt = Clock::now();
   if (whole_cloud || !cloud.isOrganized()) {
@@ -597,6 +605,7 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   stats.tracking_ms = tracking_ms;
   stats.new_planes = std::move(created.new_planes);
   const auto tp = Clock::now();
+  if (!given.empty()) world.points = std::move(given);
   keepPoints(world.points, !whole_cloud);
   stats.points_ms = msSince(tp);
   ++frames_;

@@ -120,8 +120,12 @@ struct Candidates {
   }
 };
 
-void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int threads,
-                std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature) {
+using Neighbours = std::vector<std::pair<float, std::uint32_t>>;  // (squared distance, index)
+
+// Calls fn(i, neighbours) for every valid point i with its k nearest valid points (itself
+// included; fewer only when the cloud has fewer), in parallel over grid cells.
+template <typename Fn>
+void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Fn fn) {
   const std::vector<std::uint32_t> valid = detail::validIndices(points);
   if (valid.size() < 3) return;
   const int k =
@@ -143,11 +147,17 @@ void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int threads
       cand.load(points);
       for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell); ++it) {
         if (!cand.nearest(xyz + 3 * *it, k, reach2, nb)) grid.knn(*it, cell, k, 4, nb, scratch);
-        if (nb.size() < 3) continue;
-        normalFromCovariance(neighbourCovariance(points, nb), normals[*it], curvature[*it]);
+        if (nb.size() >= 3) fn(*it, nb);
       }
     }
   }
+}
+
+void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int threads,
+                std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature) {
+  forEachKnn(points, knn, threads, [&](std::uint32_t i, const Neighbours& nb) {
+    normalFromCovariance(neighbourCovariance(points, nb), normals[i], curvature[i]);
+  });
 }
 
 // --- organised clouds ----------------------------------------------------------------------------
@@ -307,4 +317,33 @@ std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, con
 }
 
 }  // namespace detail
+
+std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vector3f>& points,
+                                                  const Config& cfg) {
+  std::vector<Eigen::Vector3f> out = points;
+  if (cfg.cloud_smooth_knn < 3) return out;
+  forEachKnn(
+      points, cfg.cloud_smooth_knn, detail::ompThreads(cfg),
+      [&](std::uint32_t i, const Neighbours& nb) {
+        Eigen::Vector3d c = Eigen::Vector3d::Zero();
+        for (const auto& e : nb) c += points[e.second].cast<double>();
+        c /= static_cast<double>(nb.size());
+        Eigen::Vector3f n;
+        float curvature = 0.0f;
+        const Eigen::Matrix3d cov = neighbourCovariance(points, nb);
+        if (!normalFromCovariance(cov, n, curvature)) return;
+        const Eigen::Vector3f p = points[i];
+        const float d = n.dot(p - c.cast<float>());
+        // sqrt(λ0): the RMS distance of the neighbours from their plane.
+        const double rms = std::sqrt(std::max(0.0, static_cast<double>(curvature) * cov.trace()));
+        // (10 µm: float rounding of room-sized coordinates, so exact surfaces keep every point)
+        if (cfg.cloud_outlier_sigma > 0.0 && std::abs(d) > cfg.cloud_outlier_sigma * rms + 1e-5) {
+          out[i] = kNaNNormal;  // an outlier of its neighbourhood: dropped
+          return;
+        }
+        out[i] = p - n * d;
+      });
+  return out;
+}
+
 }  // namespace planesdf
