@@ -6,6 +6,7 @@
 #include <variant>
 #include <vector>
 
+#include "json_depth.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
 
@@ -112,6 +113,7 @@ void setParam(Config& cfg, const Param& p, const nlohmann::json& v, const std::s
 }  // namespace
 
 Config parseConfigJson(const std::string& text, const std::string& name, const Config& base) {
+  detail::checkJsonDepth(text, name);
   nlohmann::json j;
   try {
     j = nlohmann::json::parse(text);
@@ -165,7 +167,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
   require(cfg.min_depth >= 0.0 && cfg.max_depth > cfg.min_depth,
           "depth range must satisfy 0 <= min_depth < max_depth");
   require(cfg.max_weight > 0.0f && cfg.w_min >= 0.0f, "weights must be positive");
-  require(cfg.threads >= 0, "threads must be >= 0");
+  require(cfg.threads >= 0 && cfg.threads <= kMaxThreads,
+          "threads must be in [0, " + std::to_string(kMaxThreads) + "] (0: all cores)");
   require(cfg.delta_n > 0.0 && cfg.delta_n <= 1.0, "delta_n must be in (0, 1]");
   require(cfg.delta_d >= 0.0 && cfg.delta_h > 0.0 && cfg.h_obj > 0.0,
           "delta_d, delta_h and h_obj must be positive");

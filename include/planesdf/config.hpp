@@ -10,6 +10,10 @@
 
 namespace planesdf {
 
+/// Largest Config::threads accepted: an OpenMP team is created per parallel stage, and a huge
+/// one exhausts memory before it starts (validateConfig refuses more).
+inline constexpr int kMaxThreads = 1024;
+
 struct Config {
   // --- up axis -------------------------------------------------------------------------------
   /// Gravity "up" in the world frame. Ignored when `up_auto` is true.
@@ -88,7 +92,8 @@ struct Config {
   double max_depth = 4.0;     ///< m; depth beyond this is ignored
   double min_depth = 0.2;     ///< m
   float max_weight = 100.0f;  ///< weight cap per voxel
-  int threads = 0;            ///< fusion threads; 0 = hardware concurrency
+  /// Threads of every parallel stage; 0 = hardware concurrency; at most kMaxThreads.
+  int threads = 0;
   /// Fuse rows of voxels with the AVX2 kernel when the CPU has AVX2 (checked at run time); also
   /// the AVX2 builds of the kept points' band pre-test, of the height map's block
   /// classification and layer walk and of the in-plane refinement's scoring. The results are

@@ -41,11 +41,18 @@ void writeFileAtomic(const std::string& path, const std::function<void(std::ostr
   }
 }
 
-std::string readFile(const std::string& path) {
+void requireRegularFile(const std::string& path) {
   std::error_code ec;
   const fs::file_status st = fs::status(path, ec);
   if (!fs::exists(st)) throw Error(path, "file does not exist");
   if (fs::is_directory(st)) throw Error(path, "is a folder, expected a file");
+  if (!fs::is_regular_file(st))
+    throw Error(path, "not a regular file (a FIFO, socket or device cannot be read as input)");
+}
+
+std::string readFile(const std::string& path) {
+  requireRegularFile(path);
+  std::error_code ec;
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path, std::string("cannot open: ") + std::strerror(errno));
   // Read into a buffer sized to the file: one allocation, one read.

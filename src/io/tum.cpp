@@ -336,6 +336,7 @@ std::uint32_t readBigEndian32(const unsigned char* p) {
 /// Checks the PNG signature and IHDR chunk before decoding, so a wrong type or size is reported
 /// without decoding (or allocating for) the image.
 void checkPngHeader(const std::string& path, const Intrinsics& intrinsics) {
+  requireRegularFile(path);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path, "cannot open depth PNG");
   std::array<unsigned char, 26> h{};

@@ -331,6 +331,7 @@ void Map::save(const std::string& path) const {
 }
 
 Map Map::load(const std::string& path) {
+  io::requireRegularFile(path);  // open() of a FIFO would block
   const MappedFile file(path);
   if (file.ok()) return deserializeBytes(file.data(), file.size(), path);
   return deserialize(io::readFile(path), path);

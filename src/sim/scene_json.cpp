@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "../json_depth.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
 #include "planesdf/sim.hpp"
@@ -374,6 +375,7 @@ std::string sceneToJson(const Scene& scene) {
 }
 
 Scene parseSceneJson(const std::string& text, const std::string& name) {
+  detail::checkJsonDepth(text, name);
   json j;
   try {
     j = json::parse(text);

@@ -77,6 +77,18 @@ TEST(Config, BadFilesNameFileAndKey) {
             std::string::npos);
   EXPECT_NE(errorOf(R"({"up": [0, 0]})").find("key 'up'"), std::string::npos);
   EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
+  EXPECT_NE(errorOf(R"({"threads": 100000})").find("threads must be in [0, 1024]"),
+            std::string::npos);
+}
+
+TEST(Config, DeepNestingIsRefusedBeforeParsing) {
+  // 100,000 levels overflowed the stack in nlohmann's recursive dump of the error message.
+  const std::string deep = "{\"up\": " + std::string(100000, '[') + std::string(100000, ']') + "}";
+  EXPECT_NE(errorOf(deep).find("cfg.json: JSON nests deeper than 64 levels"), std::string::npos);
+  // Brackets inside strings do not count; 64 levels are still parsed (and refused as a value).
+  EXPECT_NE(errorOf(R"({"[[[[": 1})").find("unknown key '[[[['"), std::string::npos);
+  const std::string at_limit = "{\"up\": " + std::string(63, '[') + std::string(63, ']') + "}";
+  EXPECT_NE(errorOf(at_limit).find("key 'up'"), std::string::npos);
 }
 
 TEST(Config, MissingFileNamesIt) {

@@ -1,5 +1,6 @@
 // Core data structs and the atomic-output helper.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <filesystem>
 #include <fstream>
@@ -74,6 +75,16 @@ TEST(ReadFile, MissingAndFolderInputs) {
     FAIL();
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("is a folder"), std::string::npos) << e.what();
+  }
+  // A FIFO would block the reader until a writer came: refused before it is opened.
+  const std::string fifo = tmp.file("pipe.pcd");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  try {
+    planesdf::io::readFile(fifo);
+    FAIL();
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("pipe.pcd: not a regular file"), std::string::npos)
+        << e.what();
   }
 }
 

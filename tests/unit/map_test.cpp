@@ -1,6 +1,7 @@
 // The session map against analytic scenes rendered here: a table with a box and a cylinder seen
 // from a ring of depth frames, a sphere resting against a wall, and save/load.
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 
 #include <cmath>
 #include <cstring>
@@ -242,6 +243,9 @@ TEST(Map, CorruptTruncatedAndForeignFilesNameTheFile) {
   future[8] = 99;  // version
   EXPECT_NE(errorOf(future, "future.psdf").find("version 99"), std::string::npos);
   EXPECT_THROW(Map::load(tmp.file("missing.psdf")), Error);
+  const std::string fifo = tmp.file("pipe.psdf");  // open() would block until a writer came
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_THROW(Map::load(fifo), Error);
 }
 
 TEST(Map, ReadsVersionOneMapsAndCatchesTheirCorruption) {

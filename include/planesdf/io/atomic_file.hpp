@@ -19,4 +19,8 @@ void writeFileAtomic(const std::string& path, const std::function<void(std::ostr
 /// a regular file or unreadable.
 std::string readFile(const std::string& path);
 
+/// Throws planesdf::Error naming `path` unless it is an existing regular file (or a link to
+/// one): a FIFO or device would block or never end, a folder is a usage error.
+void requireRegularFile(const std::string& path);
+
 }  // namespace planesdf::io
