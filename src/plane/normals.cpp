@@ -47,9 +47,10 @@ void orientNormals(const std::vector<Eigen::Vector3f>& points, const Eigen::Vect
   }
 }
 
-// Covariance of points[neighbours].
+// Covariance of points[neighbours]; their mean into `mean` when given.
 Eigen::Matrix3d neighbourCovariance(const std::vector<Eigen::Vector3f>& points,
-                                    const std::vector<std::pair<float, std::uint32_t>>& nb) {
+                                    const std::vector<std::pair<float, std::uint32_t>>& nb,
+                                    Eigen::Vector3d* mean = nullptr) {
   const float* xyz = detail::xyzData(points);
   const double inv = 1.0 / static_cast<double>(nb.size());
   double mx = 0, my = 0, mz = 0;
@@ -61,6 +62,7 @@ Eigen::Matrix3d neighbourCovariance(const std::vector<Eigen::Vector3f>& points,
   mx *= inv;
   my *= inv;
   mz *= inv;
+  if (mean) *mean = Eigen::Vector3d(mx, my, mz);
   double xx = 0, xy = 0, xz = 0, yy = 0, yz = 0, zz = 0;
   for (const auto& e : nb) {
     const double x = xyz[3 * e.second] - mx;
@@ -325,12 +327,10 @@ std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vecto
   forEachKnn(
       points, cfg.cloud_smooth_knn, detail::ompThreads(cfg),
       [&](std::uint32_t i, const Neighbours& nb) {
-        Eigen::Vector3d c = Eigen::Vector3d::Zero();
-        for (const auto& e : nb) c += points[e.second].cast<double>();
-        c /= static_cast<double>(nb.size());
+        Eigen::Vector3d c;
         Eigen::Vector3f n;
         float curvature = 0.0f;
-        const Eigen::Matrix3d cov = neighbourCovariance(points, nb);
+        const Eigen::Matrix3d cov = neighbourCovariance(points, nb, &c);
         if (!normalFromCovariance(cov, n, curvature)) return;
         const Eigen::Vector3f p = points[i];
         const float d = n.dot(p - c.cast<float>());
