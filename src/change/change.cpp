@@ -291,6 +291,13 @@ void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, flo
   }
 }
 
+/// A blob of `cells` cells, `top_cells` of them at the band's top and `top_on_top` of those
+/// landing on target cells at the top too, is a structure passing through the band in both maps
+/// when both fractions reach `fraction`.
+bool throughBand(int top_cells, int top_on_top, int cells, double fraction) {
+  return top_cells > 0 && top_cells >= fraction * cells && top_on_top >= fraction * top_cells;
+}
+
 /// Target height at the source cell centre mapped by T (nearest target cell); kUnobserved when
 /// outside or unobserved. `cell` receives the target cell.
 float targetHeight(const HeightMap& tgt, const Pose& T, const Eigen::Vector2d& uv, double h,
@@ -727,6 +734,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const double vs = src.volume.voxelSize();
   const double trunc = src.volume.truncation();
   const double lo_flat = 0.5 * cfg.h_obj;
+  // Heights are capped at the fused band; a cell within two voxels of it reaches the top.
+  const auto band_top = static_cast<float>(cfg.fuse_band - 2.0 * vs);
 
   // Per target object label, its cells (row-major indices, raster order), once a candidate
   // needs them.
@@ -766,11 +775,17 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     std::map<int, int> target_labels;       // target object label -> blob cells landing on it
     std::vector<std::size_t> landed_cells;  // target cells (row-major) on an object it lands on
     int on_target_objects = 0;
+    int top_cells = 0;   // cells at the band's top
+    int top_on_top = 0;  // of those, landing on target cells at the band's top
     for (const Eigen::Vector2i& c : blob.cells) {
       const float h_src = hs.at(c.x(), c.y());
       const Eigen::Vector2d uv = hs.cellCenter(c.x(), c.y());
       Eigen::Vector2i tc;
       const float h_tgt = targetHeight(ht, T, uv, std::max(0.0f, h_src), &tc);
+      if (h_src >= band_top) {
+        ++top_cells;
+        if (h_tgt != kUnobserved && h_tgt >= band_top) ++top_on_top;
+      }
       if (ht.inBounds(tc.x(), tc.y())) {
         cand.target_columns.emplace_back(ht.i0 + tc.x(), ht.j0 + tc.y());
         const int label = ot.at(tc.x(), tc.y());
@@ -820,6 +835,11 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T));
     cand.same_in_place = r.in_place.back().same();
     if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
+    // Structure passing through the band in both maps (design.md, "Structure through the band").
+    if (val.verdict != BlobValidation::Verdict::Changed &&
+        throughBand(top_cells, top_on_top, static_cast<int>(blob.cells.size()),
+                    cfg.through_band_fraction))
+      continue;
     // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
     // cluster, is a change only on 3D evidence (verdict Changed): without it, its height
     // differences are edges and rims seen from other viewpoints.
