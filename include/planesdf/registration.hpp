@@ -69,7 +69,16 @@ Eigen::Vector3d planeAnchor(const Plane& plane);
 std::vector<PlaneMatch> registerPlanes(const std::vector<Plane>& source,
                                        const std::vector<Plane>& target, const Config& cfg);
 
-/// registerPlanes on the planes of two maps.
+/// True when `b` is a second fit of `a`'s surface (docs/design.md, "Duplicate planes"): the same
+/// orientation, normals within cfg.plane_merge_angle_deg, the centre of b's extent within
+/// 2 cfg.ransac_inlier_dist of `a` (closer than two supports with objects between them can be),
+/// half or more of b's extent inside a's, and `a` the larger (more support; the lower id on a
+/// tie). A frame stream fits a long wall seen in separate patches this way.
+bool duplicateOf(const Plane& b, const Plane& a, const Config& cfg);
+
+/// registerPlanes on the planes of two maps, leaving out each map's duplicate planes
+/// (duplicateOf another plane of the same map): a duplicate would take the match of the plane it
+/// duplicates, and a slightly tilted copy of a wall reads the wall's own surface as objects.
 std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, const Config& cfg);
 
 /// Search window of refineInPlane.

@@ -118,12 +118,39 @@ std::vector<PlaneMatch> registerPlanes(const std::vector<Plane>& source,
   return matches;
 }
 
+bool duplicateOf(const Plane& b, const Plane& a, const Config& cfg) {
+  if (a.id == b.id || a.orientation != b.orientation || a.extent.isEmpty() || b.extent.isEmpty())
+    return false;
+  if (a.normal.dot(b.normal) < std::cos(cfg.plane_merge_angle_deg * kPi / 180.0)) return false;
+  if (std::abs(a.signedDistance(planeAnchor(b))) > 2.0 * cfg.ransac_inlier_dist) return false;
+  if (b.support > a.support || (b.support == a.support && b.id < a.id)) return false;
+  Eigen::AlignedBox2d carried;  // b's extent in a's frame
+  for (int k = 0; k < 4; ++k) {
+    const Eigen::Vector2d c = b.extent.corner(static_cast<Eigen::AlignedBox2d::CornerType>(k));
+    carried.extend(a.toLocal(b.toWorld(Eigen::Vector3d(c.x(), c.y(), 0.0))).head<2>());
+  }
+  const Eigen::AlignedBox2d inside = carried.intersection(a.extent);
+  return !inside.isEmpty() && inside.sizes().prod() >= 0.5 * b.extent.sizes().prod();
+}
+
+namespace {
+
+/// The planes of `map` that are no duplicate of another of its planes.
+std::vector<Plane> distinctPlanes(const Map& map, const Config& cfg) {
+  std::vector<Plane> out;
+  for (const PlaneSdf& b : map.planes()) {
+    bool duplicate = false;
+    for (const PlaneSdf& a : map.planes())
+      duplicate = duplicate || duplicateOf(b.plane, a.plane, cfg);
+    if (!duplicate) out.push_back(b.plane);
+  }
+  return out;
+}
+
+}  // namespace
+
 std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, const Config& cfg) {
-  std::vector<Plane> s;
-  std::vector<Plane> t;
-  for (const PlaneSdf& p : source.planes()) s.push_back(p.plane);
-  for (const PlaneSdf& p : target.planes()) t.push_back(p.plane);
-  return registerPlanes(s, t, cfg);
+  return registerPlanes(distinctPlanes(source, cfg), distinctPlanes(target, cfg), cfg);
 }
 
 // --- in-plane refinement ---------------------------------------------------------------------

@@ -52,6 +52,34 @@ TEST(Registration, MatchesTableToTableAndWallToWall) {
   EXPECT_NEAR(std::abs(m[1].offset_gap), 0.01, 1e-9);
 }
 
+TEST(Registration, ASecondFitOfAWallIsADuplicateATableBesideATableIsNot) {
+  const Config cfg;
+  // A 3 x 2 m wall, and a 2 x 1.2 m patch of it fitted 1.5 cm off and 0.3 degrees tilted.
+  Plane w = wall(-2.0, 0);
+  w.support = 50000;
+  const Eigen::Vector3d n(std::cos(0.3 * kDeg), std::sin(0.3 * kDeg), 0.0);
+  Plane patch = planeAt(n, Eigen::Vector3d(-1.985, 0.4, 1.0), 1, Eigen::Vector2d(1.0, 0.6));
+  patch.support = 20000;
+  EXPECT_TRUE(duplicateOf(patch, w, cfg));
+  EXPECT_FALSE(duplicateOf(w, patch, cfg));  // the larger one stays
+  // 4 cm off (beyond two RANSAC inlier distances): a separate surface, such as a panel.
+  Plane panel = planeAt(n, Eigen::Vector3d(-1.96, 0.4, 1.0), 1, Eigen::Vector2d(1.0, 0.6));
+  panel.support = 20000;
+  EXPECT_FALSE(duplicateOf(panel, w, cfg));
+  // Mostly beyond the wall's extent: another wall segment, not a second fit of this one.
+  Plane beyond = planeAt(n, Eigen::Vector3d(-1.985, 2.2, 1.0), 1, Eigen::Vector2d(1.0, 0.6));
+  beyond.support = 20000;
+  EXPECT_FALSE(duplicateOf(beyond, w, cfg));
+  // A desk 3 cm above another, beside it: extents apart, two planes.
+  Plane low = table(0.70, 2), high = planeAt(kUp, Eigen::Vector3d(2.2, 0.5, 0.73), 3);
+  low.support = high.support = 10000;
+  EXPECT_FALSE(duplicateOf(high, low, cfg));
+  EXPECT_FALSE(duplicateOf(low, high, cfg));
+  // Not the other orientation, and never itself.
+  EXPECT_FALSE(duplicateOf(w, w, cfg));
+  EXPECT_FALSE(duplicateOf(table(0.70, 4), w, cfg));
+}
+
 TEST(Registration, RejectsHigherAndTiltedPlanes) {
   const Config cfg;
   const std::vector<Plane> src{table(0.70, 0)};
