@@ -165,6 +165,12 @@ constexpr double kMaxDriftDeg = 1.0;  // rotation about the vertical at the larg
 constexpr std::uint32_t kSeed0 = 1000;
 constexpr int kSuiteFrames = 12;  // frames per session (a full orbit, one view every 30 degrees)
 
+/// Writes the pair's scene as root/scenes/NAME.json: `planesdf simulate --scene` renders it again.
+void saveScene(const std::string& root, const std::string& name, const sim::Scene& scene) {
+  std::filesystem::create_directories(root + "/scenes");
+  sim::saveSceneJson(root + "/scenes/" + name + ".json", scene);
+}
+
 /// The preset's scene for `seed`, or for seed + 100, + 200, ... (updated) when the change does not
 /// fit that layout.
 sim::Scene suiteScene(const std::string& preset, const sim::PresetOptions& opt,
@@ -196,6 +202,7 @@ std::vector<PairRecord> runSimulated(const std::string& root, const BenchArgs& a
     char name[64];
     std::snprintf(name, sizeof name, "sim%02d_%s_%.1fcm", k, sim::toString(kind),
                   f * kMaxDrift * 100.0);
+    saveScene(root, name, scene);
     SessionInput ref{s.reference.cloud, false, &s.reference};
     SessionInput cur{s.current.cloud, false, &s.current};
     PairRecord rec = runPair(root + "/" + name, ref, cur, s.reference.gt, s.current.gt, args);
@@ -254,6 +261,7 @@ std::map<std::string, std::vector<PairRecord>> runRooms(const std::string& root,
     char name[64];
     std::snprintf(name, sizeof name, "room%02d_%s_%.1fcm", k, sim::toString(kind),
                   f * kMaxDrift * 100.0);
+    saveScene(root, name, scene);
     for (const std::string& form : args.room_forms) {
       const std::string dir = root + "/" + form + "/" + name;
       const bool recon = form == "recon" || form == "mesh";
