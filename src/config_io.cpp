@@ -70,6 +70,7 @@ const std::vector<Param>& params() {
       {"delta_blob", &Config::delta_blob},
       {"plane_merge_extent_gap", &Config::plane_merge_extent_gap},
       {"plane_merge_coplanar", &Config::plane_merge_coplanar},
+      {"through_band_top", &Config::through_band_top},
       {"through_band_fraction", &Config::through_band_fraction},
       {"plane_min_extent", &Config::plane_min_extent},
       {"plane_min_width", &Config::plane_min_width},
@@ -179,6 +180,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "object_min_solidity must be in [0, 1]");
   require(cfg.blob_min_overlap >= 0.0 && cfg.blob_min_overlap <= 1.0,
           "blob_min_overlap must be in [0, 1]");
+  require(cfg.through_band_top >= 0.0 && cfg.through_band_top <= 1.0,
+          "through_band_top must be in [0, 1]");
   require(cfg.through_band_fraction >= 0.0 && std::isfinite(cfg.through_band_fraction),
           "through_band_fraction must be finite and >= 0");
   require(cfg.blob_large_area >= 0.0 && std::isfinite(cfg.blob_large_area),

@@ -90,6 +90,8 @@ int main(int argc, char** argv) {
   fuse->add_option("--out", fuse_args.out, "Output map (.psdf)")->required();
   fuse->add_option("--pictures", fuse_args.pictures,
                    "Also write each plane's height map and object map as PNGs into this folder");
+  fuse->add_option("--config", fuse_args.pipeline.config_file,
+                   "JSON file with Config parameters (explicit flags override it)");
   addPipelineOptions(fuse, fuse_args.pipeline);
 
   // detect

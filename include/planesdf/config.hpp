@@ -152,11 +152,12 @@ struct Config {
   /// change only on 3D evidence. blob_min_overlap = 0 always grows (DESIGN's blobs).
   double blob_min_overlap = 0.5;
   double blob_large_area = 0.1;  ///< m²
-  /// A blob without 3D evidence (verdict not Changed) of which at least this fraction of the cells
-  /// reach the band's top, and whose top cells land on top cells of the other map for at least
-  /// this fraction, is a structure passing through the band (a table leg on the floor, a wall
-  /// near another wall) seen from other sides in the two sessions, not an object standing in
-  /// the band (docs/design.md, "Structure through the band"). Above 1 disables the rule.
+  /// A blob without 3D evidence (verdict not Changed) of which at least through_band_top of the
+  /// cells reach the band's top, and whose top cells land on top cells of the other map for at
+  /// least through_band_fraction, is a structure passing through the band (a table leg on the
+  /// floor) seen from other sides in the two sessions, not an object standing in the band
+  /// (docs/design.md, "Structure through the band"). An overlap above 1 disables the rule.
+  double through_band_top = 0.2;
   double through_band_fraction = 1.0 / 3.0;
   /// Noise-aware height test (docs/design.md, "rough surfaces"): a cell changes only when its
   /// height differs by more than max(delta_h, roughness_factor * r), r the larger roughness of

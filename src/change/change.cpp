@@ -293,9 +293,10 @@ void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, flo
 
 /// A blob of `cells` cells, `top_cells` of them at the band's top and `top_on_top` of those
 /// landing on target cells at the top too, is a structure passing through the band in both maps
-/// when both fractions reach `fraction`.
-bool throughBand(int top_cells, int top_on_top, int cells, double fraction) {
-  return top_cells > 0 && top_cells >= fraction * cells && top_on_top >= fraction * top_cells;
+/// (cfg.through_band_top, cfg.through_band_fraction).
+bool throughBand(int top_cells, int top_on_top, int cells, const Config& cfg) {
+  return top_cells > 0 && top_cells >= cfg.through_band_top * cells &&
+         top_on_top >= cfg.through_band_fraction * top_cells;
 }
 
 /// Target height at the source cell centre mapped by T (nearest target cell); kUnobserved when
@@ -837,8 +838,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
     // Structure passing through the band in both maps (design.md, "Structure through the band").
     if (val.verdict != BlobValidation::Verdict::Changed &&
-        throughBand(top_cells, top_on_top, static_cast<int>(blob.cells.size()),
-                    cfg.through_band_fraction))
+        throughBand(top_cells, top_on_top, static_cast<int>(blob.cells.size()), cfg))
       continue;
     // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
     // cluster, is a change only on 3D evidence (verdict Changed): without it, its height

@@ -30,7 +30,7 @@ TEST(Cli, HelpForEverySubcommand) {
 TEST(Cli, DetectAndFuseHelpListPipelineFlags) {
   for (const std::string sub : {"fuse", "detect"}) {
     const auto r = runCli(sub + " --help");
-    for (const char* flag : {"--up", "--voxel", "--band", "--delta-h", "--intrinsics"})
+    for (const char* flag : {"--up", "--voxel", "--band", "--delta-h", "--intrinsics", "--config"})
       EXPECT_NE(r.out.find(flag), std::string::npos) << sub << " lacks " << flag;
   }
 }

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <fstream>
 
 #include "analytic_scene.hpp"
 #include "planesdf/height_map.hpp"
@@ -51,6 +52,21 @@ TEST(FuseCli, CloudToMapAndPictures) {
   EXPECT_GE(m.planes().size(), 1u);
   EXPECT_TRUE(std::filesystem::exists(tmp.file("pics/plane_0_height.png")));
   EXPECT_TRUE(std::filesystem::exists(tmp.file("pics/plane_0_objects.png")));
+}
+
+TEST(FuseCli, ConfigFileSetsTheMapsConfigAndFlagsOverrideIt) {
+  test::TempDir tmp;
+  {
+    std::ofstream cfg(tmp.file("cfg.json"));
+    cfg << R"({"voxel_size": 0.01, "fuse_band": 0.25})";
+  }
+  const std::string out = tmp.file("t31.psdf");
+  const auto r = test::runCli("fuse '" + test::mosdDir() + "/scenes/test31.pcd' --up auto --out '" +
+                              out + "' --config '" + tmp.file("cfg.json") + "' --band 0.2");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  const Map m = Map::load(out);
+  EXPECT_EQ(m.config().voxel_size, 0.01);
+  EXPECT_EQ(m.config().fuse_band, 0.2);
 }
 
 TEST(FuseCli, TumFolderWithProgress) {
