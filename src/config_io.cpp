@@ -43,6 +43,7 @@ const std::vector<Param>& params() {
       {"below_band", &Config::below_band},
       {"truncation_voxels", &Config::truncation_voxels},
       {"max_depth", &Config::max_depth},
+      {"surface_max_depth", &Config::surface_max_depth},
       {"min_depth", &Config::min_depth},
       {"max_weight", &Config::max_weight},
       {"threads", &Config::threads},
@@ -168,6 +169,7 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "truncation_voxels must be in [1, 64]");
   require(cfg.min_depth >= 0.0 && cfg.max_depth > cfg.min_depth,
           "depth range must satisfy 0 <= min_depth < max_depth");
+  require(cfg.surface_max_depth > cfg.min_depth, "surface_max_depth must be > min_depth");
   require(cfg.max_weight > 0.0f && cfg.w_min >= 0.0f, "weights must be positive");
   require(cfg.threads >= 0 && cfg.threads <= kMaxThreads,
           "threads must be in [0, " + std::to_string(kMaxThreads) + "] (0: all cores)");

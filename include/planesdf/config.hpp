@@ -90,6 +90,12 @@ struct Config {
   double below_band = 0.03;   ///< m below the plane also fused (thin band)
   int truncation_voxels = 4;  ///< TSDF truncation in voxels
   double max_depth = 4.0;     ///< m; depth beyond this is ignored
+  /// m; depth beyond this only carves free space in front of it (docs/design.md, "Far depth"):
+  /// fusion shifts a surface toward the camera once the depth noise nears the truncation (the
+  /// band behind a surface is shorter than the one in front). With a Kinect-class sensor
+  /// (sigma = 1.2 mm + 1.9 mm (z - 0.4 m)^2) that starts past 3 m, where sigma is half the 2.8 cm
+  /// truncation. A value >= max_depth fuses every surface.
+  double surface_max_depth = 3.0;
   double min_depth = 0.2;     ///< m
   float max_weight = 100.0f;  ///< weight cap per voxel
   /// Threads of every parallel stage; 0 = hardware concurrency; at most kMaxThreads.

@@ -65,6 +65,7 @@ void validateFusionConfig(const Config& cfg) {
   if (!(std::isfinite(cfg.min_depth) && cfg.min_depth >= 0.0)) bad("min_depth must be >= 0");
   if (!(std::isfinite(cfg.max_depth) && cfg.max_depth > cfg.min_depth))
     bad("max_depth must be finite and > min_depth");
+  if (!(cfg.surface_max_depth > cfg.min_depth)) bad("surface_max_depth must be > min_depth");
   if (!(std::isfinite(cfg.max_weight) && cfg.max_weight >= 1.0f)) bad("max_weight must be >= 1");
 }
 
@@ -342,6 +343,7 @@ struct Camera {
   float fx, fy, cx, cy;
   int width, height;
   float z_min, z_max;    // depth range (z_min > 0)
+  float z_surface;       // beyond this depth a measurement only carves free space
   Eigen::Matrix3f R_lc;  // camera -> local
   Eigen::Vector3f t_lc;
   Eigen::Matrix3d R_cl_d;  // local -> camera (double, for block origins)
@@ -359,6 +361,7 @@ Camera makeCamera(const Intrinsics& K, const Pose& T_local_camera, const Config&
   c.height = K.height;
   c.z_min = static_cast<float>(std::max(cfg.min_depth, 1e-6));
   c.z_max = static_cast<float>(cfg.max_depth);
+  c.z_surface = static_cast<float>(cfg.surface_max_depth);
   c.R_lc = T_local_camera.linear().cast<float>();
   c.t_lc = T_local_camera.translation().cast<float>();
   const Pose T_cl = T_local_camera.inverse(Eigen::Isometry);
@@ -683,7 +686,8 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
           }
           k_out[u] = k;
           const float inv_k = 1.0f / k;
-          out[u] = encodeMeasurement(n[0] * inv_k, n[1] * inv_k, d, k, false, inv_depth_scale);
+          out[u] = encodeMeasurement(n[0] * inv_k, n[1] * inv_k, d, k, d > cam.z_surface,
+                                     inv_depth_scale);
         }
         rowEdgeDistance(edge_cols.data(), static_cast<int>(edge_cols.size()), W,
                         fm.edge_dist.data() + static_cast<std::size_t>(v) * W);
@@ -1521,6 +1525,7 @@ struct DepthFrameAnalysis::Impl {
   Intrinsics intrinsics;
   float truncation = 0.0f;
   float z_min = 0.0f, z_max = 0.0f;
+  float z_surface = 0.0f;  ///< cfg.surface_max_depth it was made for
   int threads = 1;
 };
 
@@ -1558,6 +1563,7 @@ void DepthFrameAnalysis::analyseImpl(const DepthFrame& frame, double truncation,
   const Camera cam = makeCamera(frame.intrinsics, Pose::Identity(), cfg);
   a.z_min = cam.z_min;
   a.z_max = cam.z_max;
+  a.z_surface = cam.z_surface;
   a.depth = frame.depth;
   analysePixels(frame, cam, a.truncation, a.threads, a.fm, a.k, alongside);
 }
@@ -1573,12 +1579,13 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
   const DepthFrameAnalysis::Impl& a = *analysis.impl_;
   const Camera cam = makeCamera(a.intrinsics, T_local_camera, cfg);
   if (static_cast<float>(vol.truncation()) != a.truncation || cam.z_min != a.z_min ||
-      cam.z_max != a.z_max)
+      cam.z_max != a.z_max || cam.z_surface != a.z_surface)
     throw Error("", "depth frame analysis: made for truncation " + std::to_string(a.truncation) +
                         " m and depths [" + std::to_string(a.z_min) + ", " +
                         std::to_string(a.z_max) + "] m, used with truncation " +
                         std::to_string(vol.truncation()) + " m and depths [" +
-                        std::to_string(cam.z_min) + ", " + std::to_string(cam.z_max) + "] m");
+                        std::to_string(cam.z_min) + ", " + std::to_string(cam.z_max) +
+                        "] m (or another surface_max_depth)");
   IntegrationResult res;
   const int threads = resolveThreads(cfg.threads);
   const Band band = makeBand(cfg, vol.voxelSize(), vol.truncation());

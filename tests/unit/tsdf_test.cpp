@@ -365,6 +365,24 @@ TEST(TsdfFusion, PlaneRmseZeroCrossingAndFreeSpace) {
   EXPECT_GT(free_voxels, 1000u);
 }
 
+TEST(TsdfFusion, DepthBeyondSurfaceMaxDepthOnlyCarvesFreeSpace) {
+  // The plane is seen from about 1 m: with surface_max_depth 0.5 m no voxel near it is fused,
+  // but the space in front of it is carved to +truncation as before.
+  Config cfg = testConfig();
+  cfg.surface_max_depth = 0.5;
+  TsdfVolume vol(cfg);
+  fuseRing(vol, Scene{}, ring(8, 0.8, 0.6, kTarget), cfg);
+  std::size_t free_voxels = 0, near_surface = 0;
+  forEachObservedCentre(vol, [&](double, double, double, const TsdfVoxel& v) {
+    if (v.sdf < float(vol.truncation()) - 1e-6f)
+      ++near_surface;
+    else
+      ++free_voxels;
+  });
+  EXPECT_EQ(near_surface, 0u);
+  EXPECT_GT(free_voxels, 1000u);
+}
+
 TEST(TsdfFusion, SphereOnPlaneRmseAndFreeSpace) {
   const Config cfg = testConfig();
   TsdfVolume vol(cfg);
@@ -746,6 +764,9 @@ TEST(TsdfFusion, OneFrameAnalysisSharedByTwoVolumesEqualsFusingEachAlone) {
   Config near = cfg;
   near.max_depth = 2.0;
   EXPECT_THROW(integrateDepth(a2, analysis, Pose::Identity(), near), Error);
+  Config surfaces = cfg;
+  surfaces.surface_max_depth = 1.0;
+  EXPECT_THROW(integrateDepth(a2, analysis, Pose::Identity(), surfaces), Error);
 }
 
 TEST(TsdfFusion, AnalysisWithATaskAlongsideIsTheSameAndRunsItOnce) {
