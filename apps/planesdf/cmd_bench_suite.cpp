@@ -165,7 +165,8 @@ constexpr double kMaxDriftDeg = 1.0;  // rotation about the vertical at the larg
 constexpr std::uint32_t kSeed0 = 1000;
 constexpr int kSuiteFrames = 12;  // frames per session (a full orbit, one view every 30 degrees)
 
-/// Writes the pair's scene as root/scenes/NAME.json: `planesdf simulate --scene` renders it again.
+/// Writes the pair's scene as ROOT/scenes/NAME.json (ROOT: the suite's sim/ or room/ folder), which
+/// `planesdf simulate --scene` renders again.
 void saveScene(const std::string& root, const std::string& name, const sim::Scene& scene) {
   std::filesystem::create_directories(root + "/scenes");
   sim::saveSceneJson(root + "/scenes/" + name + ".json", scene);

@@ -73,6 +73,8 @@ constexpr double kOtherPlaneBehind = 0.10;
 /// In front of such a plane, its noisy surface reaches this far (m).
 constexpr double kStructureFront = 0.06;
 constexpr double kStructureMinExtent = 1.0;
+/// A vertical plane at least this long (m) is a wall of the room.
+constexpr double kWallMinLength = 2.0;
 constexpr double kNoReachLimit = std::numeric_limits<double>::infinity();
 constexpr double kOtherPlaneMargin = 0.03;
 
@@ -613,9 +615,13 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
     if (q.id == plane.id || q.extent.isEmpty()) continue;
     if (std::abs(q.normal.dot(plane.normal)) < kParallelPlaneCos) {
       const bool structure = isStructure(q);
+      Eigen::AlignedBox2d box = grown(q.extent, kOtherPlaneMargin);
+      // A wall goes on up beyond what the streams' planes saw of it (their extents stop near
+      // 1.8 m): its surface near another wall is structure at any height (v is up).
+      if (structure && q.extent.sizes().x() >= kWallMinLength)
+        box.max().y() = std::numeric_limits<double>::infinity();
       claims.push_back({&q, -(structure ? kOtherPlaneBehind : kOtherPlaneDistance),
-                        structure ? kStructureFront : kOtherPlaneDistance,
-                        grown(q.extent, kOtherPlaneMargin)});
+                        structure ? kStructureFront : kOtherPlaneDistance, box});
     }
     if (q.orientation != Plane::Orientation::Horizontal) continue;
     // A slab just above the band (the next shelf board, a table top over a low one): its

@@ -103,8 +103,9 @@ TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
   const json j = json::parse(planesdf::io::readFile(dir + "/comparison.json"));
   const std::string md = planesdf::io::readFile(dir + "/comparison.md");
   // Each simulated pair's scene, for `planesdf simulate --scene` to render it again.
-  for (const char* scene : {"sim00_none_0.0cm", "sim01_add_0.0cm", "room00_none_0.0cm"}) {
-    const json s = json::parse(planesdf::io::readFile(dir + "/scenes/" + scene + ".json"));
+  for (const char* scene : {"sim/scenes/sim00_none_0.0cm", "sim/scenes/sim01_add_0.0cm",
+                            "room/scenes/room00_none_0.0cm"}) {
+    const json s = json::parse(planesdf::io::readFile(dir + "/" + scene + ".json"));
     EXPECT_EQ(s.at("format").get<std::string>(), "planesdf-scene") << scene;
   }
   std::vector<std::string> methods{"PlaneSDF", "Point distance"};
