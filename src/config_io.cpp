@@ -25,6 +25,7 @@ const std::vector<Param>& params() {
       {"up_auto", &Config::up_auto},
       {"ransac_inlier_dist", &Config::ransac_inlier_dist},
       {"ransac_min_inlier_frac", &Config::ransac_min_inlier_frac},
+      {"ransac_min_horizontal_frac", &Config::ransac_min_horizontal_frac},
       {"ransac_iterations", &Config::ransac_iterations},
       {"ransac_max_planes_per_frame", &Config::ransac_max_planes_per_frame},
       {"plane_merge_angle_deg", &Config::plane_merge_angle_deg},
@@ -195,7 +196,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "alpha must be > 0 and delta_blob in (0, 1]");
   require(cfg.sdf_sigma_voxels > 0.0, "sdf_sigma_voxels must be > 0");
   require(cfg.ransac_inlier_dist > 0.0 && cfg.ransac_iterations >= 1 &&
-              cfg.ransac_min_inlier_frac > 0.0 && cfg.ransac_min_inlier_frac <= 1.0,
+              cfg.ransac_min_inlier_frac > 0.0 && cfg.ransac_min_inlier_frac <= 1.0 &&
+              cfg.ransac_min_horizontal_frac > 0.0 && cfg.ransac_min_horizontal_frac <= 1.0,
           "RANSAC parameters out of range");
   require(cfg.normal_knn >= 3 && cfg.normal_knn <= 1000, "normal_knn must be in [3, 1000]");
   require(cfg.cloud_smooth_knn == 0 || (cfg.cloud_smooth_knn >= 3 && cfg.cloud_smooth_knn <= 1000),

@@ -24,9 +24,12 @@ struct Config {
   // --- plane detection, streams (per-frame RANSAC)
   // ------------------------------------------------
   double ransac_inlier_dist = 0.015;  ///< m
-  /// Of the frame's valid points: a shelf board scanned from 1.4 m fills 2-5 % of a frame
-  /// (plane_min_extent keeps the object faces this lets through from becoming planes).
+  /// Of the frame's valid points (plane_min_extent keeps the object faces this lets through
+  /// from becoming planes).
   double ransac_min_inlier_frac = 0.03;
+  /// ... and for horizontal frame planes: a shelf board near eye height is seen foreshortened
+  /// and fills 1-3 % of a frame (design.md, "Planes"). The extent minimums below still apply.
+  double ransac_min_horizontal_frac = 0.015;
   int ransac_iterations = 200;
   int ransac_max_planes_per_frame = 8;
   /// Merge a frame plane into a global plane when normals agree within this angle ...

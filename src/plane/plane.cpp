@@ -142,6 +142,8 @@ void validatePlaneConfig(const Config& c) {
   require(c.ransac_inlier_dist > 0.0, "ransac_inlier_dist must be > 0");
   require(c.ransac_min_inlier_frac > 0.0 && c.ransac_min_inlier_frac <= 1.0,
           "ransac_min_inlier_frac must be in (0, 1]");
+  require(c.ransac_min_horizontal_frac > 0.0 && c.ransac_min_horizontal_frac <= 1.0,
+          "ransac_min_horizontal_frac must be in (0, 1]");
   require(c.ransac_iterations >= 1, "ransac_iterations must be >= 1");
   require(c.ransac_max_planes_per_frame >= 0, "ransac_max_planes_per_frame must be >= 0");
   require(c.ransac_max_samples >= 3, "ransac_max_samples must be >= 3");

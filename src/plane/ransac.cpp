@@ -201,24 +201,29 @@ std::vector<RansacPlane> sequentialRansac(const std::vector<Eigen::Vector3f>& po
 }
 
 std::vector<PlaneObservation> ransacFramePlanes(const std::vector<Eigen::Vector3f>& points,
-                                                const Eigen::Vector3d& sensor, const Config& cfg) {
+                                                const Eigen::Vector3d& sensor, const Config& cfg,
+                                                const Eigen::Vector3d* up) {
   const std::vector<std::uint32_t> sample =
       strideSample(points, static_cast<std::size_t>(cfg.ransac_max_samples));
   if (sample.size() < 3) return {};
-  const auto min_sample = static_cast<std::size_t>(
-      std::ceil(cfg.ransac_min_inlier_frac * static_cast<double>(sample.size())));
+  const double frac = cfg.ransac_min_inlier_frac;
+  const double lowest = up ? std::min(frac, cfg.ransac_min_horizontal_frac) : frac;
+  const auto min_sample =
+      static_cast<std::size_t>(std::ceil(lowest * static_cast<double>(sample.size())));
   const std::vector<RansacPlane> planes =
       sequentialRansac(points, sample, cfg.ransac_inlier_dist, cfg.ransac_iterations, min_sample,
                        cfg.ransac_max_planes_per_frame, kSeed);
   std::vector<std::vector<std::uint32_t>> inliers;
   const std::size_t valid = assignInliers(points, planes, cfg.ransac_inlier_dist, inliers);
-  const auto min_full =
-      static_cast<std::size_t>(std::ceil(cfg.ransac_min_inlier_frac * static_cast<double>(valid)));
   std::vector<PlaneObservation> out;
   for (std::size_t k = 0; k < planes.size(); ++k) {
-    if (inliers[k].size() < std::max<std::size_t>(min_full, 3)) continue;
     Eigen::Vector3d n = planes[k].normal;
     double d = planes[k].offset;
+    const bool horizontal = up && classifyOrientation(n, *up, cfg.orientation_tolerance_deg) ==
+                                      Plane::Orientation::Horizontal;
+    const auto min_full = static_cast<std::size_t>(std::ceil(
+        (horizontal ? cfg.ransac_min_horizontal_frac : frac) * static_cast<double>(valid)));
+    if (inliers[k].size() < std::max<std::size_t>(min_full, 3)) continue;
     orientToward(n, d, sensor);
     // Coplanar but separate surfaces (a wall's strip at table height) become separate
     // observations; parts below the minimum are dropped.
@@ -265,16 +270,18 @@ std::vector<PlaneObservation> detectPlanesRansac(const std::vector<Eigen::Vector
                                                  const Eigen::Vector3d& sensor_origin,
                                                  const Config& cfg, const Eigen::Vector3d& up) {
   validatePlaneConfig(cfg);
-  return detail::finishObservations(detail::ransacFramePlanes(points_world, sensor_origin, cfg),
-                                    points_world, up.normalized(), cfg);
+  const Eigen::Vector3d u = up.normalized();
+  return detail::finishObservations(detail::ransacFramePlanes(points_world, sensor_origin, cfg, &u),
+                                    points_world, u, cfg);
 }
 
 std::vector<PlaneObservation> detectPlanesRansac(const std::vector<Eigen::Vector3f>& points_world,
                                                  const Eigen::Vector3d& sensor_origin,
                                                  const Config& cfg) {
   validatePlaneConfig(cfg);
-  std::vector<PlaneObservation> all = detail::ransacFramePlanes(points_world, sensor_origin, cfg);
   Eigen::Vector3d up = cfg.up.normalized();
+  std::vector<PlaneObservation> all =
+      detail::ransacFramePlanes(points_world, sensor_origin, cfg, cfg.up_auto ? nullptr : &up);
   if (cfg.up_auto && !all.empty()) up = all.front().plane.normal;
   return detail::finishObservations(std::move(all), points_world, up, cfg);
 }

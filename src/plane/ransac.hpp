@@ -31,9 +31,11 @@ std::vector<RansacPlane> sequentialRansac(const std::vector<Eigen::Vector3f>& po
 
 /// Frame planes of `points` with normals toward `sensor`, inliers over all points (each point to
 /// the first plane within cfg.ransac_inlier_dist), not yet classified and without a frame
-/// (frame_* default, extent empty). Largest first.
+/// (frame_* default, extent empty). Largest first. Planes need cfg.ransac_min_inlier_frac of the
+/// valid points, horizontal ones (against `up`, when given) cfg.ransac_min_horizontal_frac.
 std::vector<PlaneObservation> ransacFramePlanes(const std::vector<Eigen::Vector3f>& points,
-                                                const Eigen::Vector3d& sensor, const Config& cfg);
+                                                const Eigen::Vector3d& sensor, const Config& cfg,
+                                                const Eigen::Vector3d* up);
 
 /// Builds frames (from `up`) and extents, classifies against `up` and keeps only horizontal and
 /// vertical observations.

@@ -62,7 +62,8 @@ int PlaneTracker::refinementCount(int id) const {
 
 std::vector<int> PlaneTracker::integrate(const std::vector<Eigen::Vector3f>& points_world,
                                          const Eigen::Vector3d& sensor_origin) {
-  std::vector<PlaneObservation> all = detail::ransacFramePlanes(points_world, sensor_origin, cfg_);
+  std::vector<PlaneObservation> all =
+      detail::ransacFramePlanes(points_world, sensor_origin, cfg_, up_ ? &*up_ : nullptr);
   if (!up_) {
     if (all.empty()) return {};
     up_ = all.front().plane.normal;  // largest plane, normal toward the sensor

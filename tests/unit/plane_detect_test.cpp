@@ -363,9 +363,42 @@ TEST(PlaneRansac, FindsTheTablePlaneInADepthFrame) {
   // Every returned plane is horizontal or vertical and faces the sensor.
   for (const PlaneObservation& o : obs) {
     EXPECT_GT(o.plane.signedDistance(pose.translation()), 0.0);
-    EXPECT_GE(o.plane.support,
-              static_cast<std::size_t>(cfg.ransac_min_inlier_frac * frame.countValid()));
+    const double frac = o.plane.orientation == Plane::Orientation::Horizontal
+                            ? cfg.ransac_min_horizontal_frac
+                            : cfg.ransac_min_inlier_frac;
+    EXPECT_GE(o.plane.support, static_cast<std::size_t>(frac * frame.countValid()));
   }
+}
+
+TEST(PlaneRansac, AForeshortenedBoardIsAPlaneAndAsSmallAVerticalPatchIsNot) {
+  // A wall (about 80 % of the points), a floor strip, a shelf board and a vertical patch of the
+  // same size as the board (2 % of the points each), 1 mm noise.
+  std::mt19937 rng(7);
+  std::vector<Eigen::Vector3f> pts;
+  const Eigen::Vector3d ex = Eigen::Vector3d::UnitX(), ey = Eigen::Vector3d::UnitY(),
+                        ez = Eigen::Vector3d::UnitZ();
+  sampleRect(pts, {0, 3, 0}, ex, 3.0, ez, 2.5, 0.02, 0.001, rng);
+  sampleRect(pts, {0, 2, 0}, ex, 3.0, ey, 0.6, 0.025, 0.001, rng);
+  const std::size_t before_board = pts.size();
+  sampleRect(pts, {1.0, 2.6, 1.2}, ex, 0.9, ey, 0.3, 0.025, 0.001, rng);
+  const std::size_t board = pts.size() - before_board;
+  sampleRect(pts, {2.0, 1.0, 0.5}, ez, 0.3, ex, 0.9, 0.025, 0.001, rng);  // faces -y
+  ASSERT_GT(board, pts.size() / 70);  // between the two fractions
+  ASSERT_LT(board, pts.size() / 40);
+  const Eigen::Vector3d sensor(1.5, 0.0, 1.5);
+  Config cfg;
+  const auto has = [](const std::vector<PlaneObservation>& obs, const Eigen::Vector3d& n,
+                      double d) {
+    for (const PlaneObservation& o : obs)
+      if (o.plane.normal.dot(n) > 0.999 && std::abs(o.plane.offset - d) < 0.005) return true;
+    return false;
+  };
+  const auto obs = detectPlanesRansac(pts, sensor, cfg, ez);
+  EXPECT_TRUE(has(obs, ez, -1.2));   // the board
+  EXPECT_FALSE(has(obs, -ey, 1.0));  // the vertical patch
+  EXPECT_TRUE(has(obs, -ey, 3.0));   // the wall
+  cfg.ransac_min_horizontal_frac = cfg.ransac_min_inlier_frac;
+  EXPECT_FALSE(has(detectPlanesRansac(pts, sensor, cfg, ez), ez, -1.2));
 }
 
 TEST(PlaneTracker, RefinementsThinOutGeometricallyAndKeepThePlaneExact) {
