@@ -162,9 +162,9 @@ struct Config {
   double blob_min_overlap = 0.5;
   double blob_large_area = 0.1;  ///< m²
   /// A blob without 3D evidence (verdict not Changed) of which at least through_band_top of the
-  /// cells reach the band's top, and whose top cells land on top cells of the other map for at
-  /// least through_band_fraction, is a structure passing through the band (a table leg on the
-  /// floor) seen from other sides in the two sessions, not an object standing in the band
+  /// cells reach the band's top, and whose top cells land on or next to top cells of the other map
+  /// for at least through_band_fraction, is a structure passing through the band (a table leg on
+  /// the floor) seen from other sides in the two sessions, not an object standing in the band
   /// (docs/design.md, "Structure through the band"). An overlap above 1 disables the rule.
   double through_band_top = 0.2;
   double through_band_fraction = 1.0 / 3.0;

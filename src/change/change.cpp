@@ -294,11 +294,19 @@ void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, flo
 }
 
 /// A blob of `cells` cells, `top_cells` of them at the band's top and `top_on_top` of those
-/// landing on target cells at the top too, is a structure passing through the band in both maps
-/// (cfg.through_band_top, cfg.through_band_fraction).
+/// landing on or next to target cells at the top, is a structure passing through the band in both
+/// maps (cfg.through_band_top, cfg.through_band_fraction).
 bool throughBand(int top_cells, int top_on_top, int cells, const Config& cfg) {
   return top_cells > 0 && top_cells >= cfg.through_band_top * cells &&
          top_on_top >= cfg.through_band_fraction * top_cells;
+}
+
+/// True when a cell of `hm` within `reach` cells (square) of `c` is at or above `top`.
+bool topNear(const HeightMap& hm, const Eigen::Vector2i& c, int reach, float top) {
+  for (int y = c.y() - reach; y <= c.y() + reach; ++y)
+    for (int x = c.x() - reach; x <= c.x() + reach; ++x)
+      if (hm.inBounds(x, y) && hm.at(x, y) != kUnobserved && hm.at(x, y) >= top) return true;
+  return false;
 }
 
 /// Target height at the source cell centre mapped by T (nearest target cell); kUnobserved when
@@ -743,6 +751,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   const double lo_flat = 0.5 * cfg.h_obj;
   // Heights are capped at the fused band; a cell within two voxels of it reaches the top.
   const auto band_top = static_cast<float>(cfg.fuse_band - 2.0 * vs);
+  // A column's top lands on, or next to, the other map's top column (design.md, "Structure
+  // through the band").
+  constexpr int top_reach = 1;
 
   // Per target object label, its cells (row-major indices, raster order), once a candidate
   // needs them.
@@ -783,7 +794,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     std::vector<std::size_t> landed_cells;  // target cells (row-major) on an object it lands on
     int on_target_objects = 0;
     int top_cells = 0;   // cells at the band's top
-    int top_on_top = 0;  // of those, landing on target cells at the band's top
+    int top_on_top = 0;  // of those, landing near target cells at the band's top
     for (const Eigen::Vector2i& c : blob.cells) {
       const float h_src = hs.at(c.x(), c.y());
       const Eigen::Vector2d uv = hs.cellCenter(c.x(), c.y());
@@ -791,7 +802,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       const float h_tgt = targetHeight(ht, T, uv, std::max(0.0f, h_src), &tc);
       if (h_src >= band_top) {
         ++top_cells;
-        if (h_tgt != kUnobserved && h_tgt >= band_top) ++top_on_top;
+        if (topNear(ht, tc, top_reach, band_top)) ++top_on_top;
       }
       if (ht.inBounds(tc.x(), tc.y())) {
         cand.target_columns.emplace_back(ht.i0 + tc.x(), ht.j0 + tc.y());

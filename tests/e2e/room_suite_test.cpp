@@ -1,0 +1,66 @@
+// Pairs of the room suite (`planesdf bench --suite`, one change per room), rendered again from
+// the scenes the suite wrote (tests/data/scenes/): the TUM streams and the reconstruction clouds
+// through `detect`, scored by `eval`.
+#include <gtest/gtest.h>
+
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "test_support.hpp"
+
+namespace {
+using planesdf::test::runCli;
+using planesdf::test::TempDir;
+
+std::string sceneFile(const std::string& name) {
+  return std::string(PLANESDF_TEST_DATA_DIR) + "/scenes/" + name + ".json";
+}
+
+// `detect REF CUR` then `eval` against the simulation's ground truth `sim/gt/*{gt}.ply`; null
+// (with a failure recorded) when a step fails.
+nlohmann::json detectAndScore(const TempDir& tmp, const std::string& ref, const std::string& cur,
+                              const std::string& gt, const std::string& out) {
+  const auto d = runCli("detect '" + tmp.file(ref) + "' '" + tmp.file(cur) + "' --out '" +
+                        tmp.file(out) + "'");
+  EXPECT_EQ(d.exit_code, 0) << d.out;
+  if (d.exit_code != 0) return nullptr;
+  const auto e = runCli("eval '" + tmp.file(out) + "' --gt-reference '" +
+                        tmp.file("sim/gt/reference" + gt + ".ply") + "' --gt-current '" +
+                        tmp.file("sim/gt/current" + gt + ".ply") + "' --json");
+  EXPECT_EQ(e.exit_code, 0) << e.out;
+  if (e.exit_code != 0) return nullptr;
+  return nlohmann::json::parse(e.out.substr(e.out.find('{')));
+}
+
+struct PairExpectation {
+  const char* scene;
+  double recon_min_f1;  ///< 0: the reconstruction's change is a known miss (design.md)
+};
+
+TEST(RoomSuite, ShelfBoardsNearEyeHeightAndTableLegsAreNoChange) {
+  // room04: a sphere moved 3 cm on a desk, a shelf of 5 boards whose upper two are seen only
+  // foreshortened (design.md, "Boards near eye height are foreshortened"). room06: an object
+  // replaced on a desk; a table leg's top seen a cell apart by the two sessions (design.md,
+  // "Structure through the band"). In the reconstructions a 3 cm move of an 8.6 cm sphere is
+  // narrower than the rims the splatted maps allow (design.md, "Known gaps").
+  for (const PairExpectation& p :
+       {PairExpectation{"room04_small_move", 0.0}, PairExpectation{"room06_replace", 0.85}}) {
+    SCOPED_TRACE(p.scene);
+    TempDir tmp;
+    const auto sim =
+        runCli("simulate --scene '" + sceneFile(p.scene) + "' --out '" + tmp.file("sim") + "'");
+    ASSERT_EQ(sim.exit_code, 0) << sim.out;
+    const nlohmann::json s = detectAndScore(tmp, "sim/reference", "sim/current", "", "streams");
+    ASSERT_FALSE(s.is_null());
+    EXPECT_EQ(s["wrong"].get<int>(), 0);
+    EXPECT_EQ(s["missed"].get<int>(), 0);
+    EXPECT_GE(s["f1"].get<double>(), 0.9);
+    const nlohmann::json r =
+        detectAndScore(tmp, "sim/reference_recon.ply", "sim/current_recon.ply", "_recon", "recon");
+    ASSERT_FALSE(r.is_null());
+    EXPECT_EQ(r["wrong"].get<int>(), 0);
+    EXPECT_GE(r["f1"].get<double>(), p.recon_min_f1);
+  }
+}
+
+}  // namespace
