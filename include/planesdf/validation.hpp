@@ -99,6 +99,10 @@ struct ValidationParams {
   /// their rims, seen from other viewpoints in the two sessions) and of a far wall's noise scored
   /// below δ_blob and made them "changed"; real changes there score 16 to 30 key voxels.
   int min_scored = 3;
+  /// min_scored where either map was splatted from a cloud without a pixel grid (Map::splatted):
+  /// its SDF carries the noise of the points, and a static object's rims in a raw or
+  /// reconstructed cloud scored "changed" from 3-5 key voxels (design.md, "3D verdicts").
+  int min_scored_splatted = 8;
 };
 
 /// Length of a feature: 3 N_θ N_φ N_λ + 1 (451 with the defaults). Throws planesdf::Error when a

@@ -847,7 +847,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           src.volume, hs, slo, shi, columnsNear(std::move(src_cols), slo, shi, kMargin), cfg.w_min);
       const TsdfVolume tv = completedRegion(
           tgt.volume, ht, tlo, thi, columnsNear(std::move(tgt_cols), tlo, thi, kMargin), cfg.w_min);
-      val = validateBlob(sv, tv, T, voxels, cfg, options.validation);
+      ValidationParams vp = options.validation;
+      if (rim_cells > 0) vp.min_scored = vp.min_scored_splatted;
+      val = validateBlob(sv, tv, T, voxels, cfg, vp);
     }
     r.validations.push_back(val);
     r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T));

@@ -414,6 +414,24 @@ TEST(Map, TheUndersideOfASlabFacesDownWithoutAViewpoint) {
   EXPECT_EQ(negative, inside);
 }
 
+TEST(Map, AnObjectsTopInACloudWithoutAPixelGridIsNoPlane) {
+  // Whole-scene clouds without a pixel grid keep supports only, as streams do: the faces of a
+  // 45 x 45 cm box (shorter than plane_min_extent) are no plane, those of a 90 x 30 cm board are.
+  const Config cfg;
+  const auto raisedPlanes = [](const Map& m) {
+    int n = 0;
+    for (const PlaneSdf& p : m.planes())
+      n += std::abs(p.plane.offset) > 0.1 && std::abs(p.plane.normal.z()) > 0.99;
+    return n;
+  };
+  const Map box = Map::fromCloud(floorAndSlab(0.17f, 0.20f, 22, 22), cfg);
+  EXPECT_NE(floorOf(box), nullptr);
+  EXPECT_EQ(raisedPlanes(box), 0);
+  const Map board = Map::fromCloud(floorAndSlab(0.17f, 0.20f, 45, 15), cfg);
+  EXPECT_NE(floorOf(board), nullptr);
+  EXPECT_GE(raisedPlanes(board), 1);
+}
+
 TEST(Map, TheUndersideOfABoardOverTheBandIsNoObjectOnTheFloor) {
   // A cloud without a viewpoint: a 2 x 2 m floor and a board 2 cm thick whose underside lies
   // 29.5 cm above it (in the floor's 30 cm band) and its top 31.5 cm (just above). The board's
