@@ -661,6 +661,55 @@ bool hasCore(const Blob& blob, int cells) {
   return erode(m, cells).count() > 0;
 }
 
+/// True when the source objects `labels` (together smaller than `large_cells`) fit the target
+/// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
+/// off as in place: the object moved by a few cm (design.md, "Small moves"). Cells the target
+/// did not observe at a shift are not compared; a shift comparing fewer than 80 % of the cells
+/// is not a fit.
+bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
+                   const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
+                   int max_shift) {
+  std::vector<Eigen::Vector2i> src, tgt;
+  for (const int label : labels) {
+    const ObjectInfo& o = os.object(label);
+    for (int y = o.bbox_min.y(); y <= o.bbox_max.y(); ++y)
+      for (int x = o.bbox_min.x(); x <= o.bbox_max.x(); ++x) {
+        if (os.at(x, y) != label) continue;
+        Eigen::Vector2i tc;
+        targetHeight(ht, T, hs.cellCenter(x, y), std::max(0.0f, hs.at(x, y)), &tc);
+        src.emplace_back(x, y);
+        tgt.push_back(tc);
+      }
+  }
+  if (src.empty() || static_cast<int>(src.size()) >= large_cells) return false;
+  constexpr float kCap = 0.05f;  // a cell's mismatch counts up to 5 cm
+  const auto misfit = [&](int dx, int dy) {
+    double sum = 0.0;
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < src.size(); ++i) {
+      const int x = tgt[i].x() + dx, y = tgt[i].y() + dy;
+      if (!ht.inBounds(x, y) || ht.at(x, y) == kUnobserved) continue;
+      sum += std::min(kCap, std::fabs(std::max(0.0f, hs.at(src[i].x(), src[i].y())) -
+                                      std::max(0.0f, ht.at(x, y))));
+      ++n;
+    }
+    return 10 * n >= 8 * src.size() ? sum / static_cast<double>(n)
+                                    : std::numeric_limits<double>::infinity();
+  };
+  const double in_place = misfit(0, 0);
+  double best = in_place;
+  int best_d2 = 0;
+  for (int dy = -max_shift; dy <= max_shift; ++dy)
+    for (int dx = -max_shift; dx <= max_shift; ++dx) {
+      const double m = misfit(dx, dy);
+      if (m < best) {
+        best = m;
+        best_d2 = dx * dx + dy * dy;
+      }
+    }
+  return best_d2 >= min_shift * min_shift && best <= 0.5 * in_place;
+}
+
 int surfaceRimCells(const Map& map) {
   return map.splatted() ? static_cast<int>(std::ceil(map.config().splat_radius_voxels)) : 0;
 }
@@ -754,6 +803,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   // A column's top lands on, or next to, the other map's top column (design.md, "Structure
   // through the band").
   constexpr int top_reach = 1;
+  // Shifts searched for a small move (design.md, "Small moves"): up to 6 cm.
+  const int small_move_cells = static_cast<int>(std::ceil(0.06 / hs.cell_size));
 
   // Per target object label, its cells (row-major indices, raster order), once a candidate
   // needs them.
@@ -865,8 +916,12 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if ((blob.partial || blob.area < cfg.min_change_cells) &&
         val.verdict != BlobValidation::Verdict::Changed)
       continue;
-    // In a splatted map, a sliver no wider than a rim is a rim (design.md, "Slivers").
-    if (blob.partial && rim_width > 0 && !hasCore(blob, rim_width)) continue;
+    // In a splatted map, a sliver no wider than a rim is a rim (design.md, "Slivers"), unless
+    // its whole object fits the other map shifted by more than a rim (design.md, "Small moves").
+    if (blob.partial && rim_width > 0 && !hasCore(blob, rim_width) &&
+        !shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
+                       small_move_cells))
+      continue;
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
     reg.voxels = std::move(voxels);

@@ -34,17 +34,18 @@ nlohmann::json detectAndScore(const TempDir& tmp, const std::string& ref, const 
 
 struct PairExpectation {
   const char* scene;
-  double recon_min_f1;  ///< 0: the reconstruction's change is a known miss (design.md)
+  double recon_min_f1;  ///< the reconstruction clouds' least F1
 };
 
 TEST(RoomSuite, ShelfBoardsNearEyeHeightAndTableLegsAreNoChange) {
   // room04: a sphere moved 3 cm on a desk, a shelf of 5 boards whose upper two are seen only
   // foreshortened (design.md, "Boards near eye height are foreshortened"). room06: an object
   // replaced on a desk; a table leg's top seen a cell apart by the two sessions (design.md,
-  // "Structure through the band"). In the reconstructions a 3 cm move of an 8.6 cm sphere is
-  // narrower than the rims the splatted maps allow (design.md, "Known gaps").
+  // "Structure through the band"). In the reconstructions the sphere's 3 cm move is narrower
+  // than a rim; it is found where the sphere fits the other map shifted (design.md, "Small
+  // moves"): the added crescent with half the points, the removed one missed.
   for (const PairExpectation& p :
-       {PairExpectation{"room04_small_move", 0.0}, PairExpectation{"room06_replace", 0.85}}) {
+       {PairExpectation{"room04_small_move", 0.4}, PairExpectation{"room06_replace", 0.85}}) {
     SCOPED_TRACE(p.scene);
     TempDir tmp;
     const auto sim =
