@@ -803,6 +803,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   // A column's top lands on, or next to, the other map's top column (design.md, "Structure
   // through the band").
   constexpr int top_reach = 1;
+  // Splatted maps need more scored key voxels (design.md, "3D verdicts").
+  ValidationParams validation = options.validation;
+  if (rim_cells > 0) validation.min_scored = validation.min_scored_splatted;
   // Shifts searched for a small move (design.md, "Small moves"): up to 6 cm.
   const int small_move_cells = static_cast<int>(std::ceil(0.06 / hs.cell_size));
 
@@ -898,9 +901,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           src.volume, hs, slo, shi, columnsNear(std::move(src_cols), slo, shi, kMargin), cfg.w_min);
       const TsdfVolume tv = completedRegion(
           tgt.volume, ht, tlo, thi, columnsNear(std::move(tgt_cols), tlo, thi, kMargin), cfg.w_min);
-      ValidationParams vp = options.validation;
-      if (rim_cells > 0) vp.min_scored = vp.min_scored_splatted;
-      val = validateBlob(sv, tv, T, voxels, cfg, vp);
+      val = validateBlob(sv, tv, T, voxels, cfg, validation);
     }
     r.validations.push_back(val);
     r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T));

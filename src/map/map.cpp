@@ -542,13 +542,12 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
 
   IntegrateStats created;
   const auto tt = Clock::now();
-  if (!cloud.isOrganized()) {
-    // A whole scene without a pixel grid: supports and walls only, as in streams (design.md,
-    // "Shelf boards are planes, object faces are not").
-    tracker_.merge(observationsOf(segmentPlanes(world, cfg_)), world.points, cfg_.plane_min_extent,
-                   cfg_.plane_min_width);
-  } else if (whole_cloud) {
-    tracker_.merge(observationsOf(segmentPlanes(world, cfg_)), world.points);
+  if (whole_cloud || !cloud.isOrganized()) {
+    // Without a pixel grid, supports and walls only, as in streams; a single organised view keeps
+    // object faces (design.md, "Shelf boards are planes, object faces are not").
+    const bool grid = cloud.isOrganized();
+    tracker_.merge(observationsOf(segmentPlanes(world, cfg_)), world.points,
+                   grid ? 0.0 : cfg_.plane_min_extent, grid ? 0.0 : cfg_.plane_min_width);
   } else {
     tracker_.integrate(world.points, world.sensor_pose.translation());
   }
