@@ -17,6 +17,7 @@
 #include <map>
 #include <set>
 #include <tuple>
+#include <unordered_set>
 #include <utility>
 
 #include "../numeric.hpp"
@@ -299,6 +300,19 @@ void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, flo
 bool throughBand(int top_cells, int top_on_top, int cells, const Config& cfg) {
   return top_cells > 0 && top_cells >= cfg.through_band_top * cells &&
          top_on_top >= cfg.through_band_fraction * top_cells;
+}
+
+/// Of the cells of the objects `labels` (label -> anything; cells per label in `label_cells`) of
+/// `hm`, the fraction at or above `top`; 0 without objects.
+double topFraction(const HeightMap& hm, const std::map<int, int>& labels,
+                   const std::vector<std::vector<std::size_t>>& label_cells, float top) {
+  std::size_t cells = 0, at_top = 0;
+  for (const auto& entry : labels)
+    for (const std::size_t c : label_cells[static_cast<std::size_t>(entry.first)]) {
+      ++cells;
+      if (hm.heights[c] >= top) ++at_top;
+    }
+  return cells > 0 ? static_cast<double>(at_top) / static_cast<double>(cells) : 0.0;
 }
 
 /// True when a cell of `hm` within `reach` cells (square) of `c` is at or above `top`.
@@ -836,6 +850,14 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     float lo, hi;
   };
   std::vector<OwnedCell> owned;
+  // Where the other map is flat, a column's points are a change only above that flat surface's
+  // own height: a shelf's back panel a centimetre in front of the wall is in both (design.md,
+  // "Event points").
+  const auto pointFloor = [&](const Eigen::Vector2i& c) {
+    const float h = targetHeight(ht, T, hs.cellCenter(c.x(), c.y()), 0.0, nullptr);
+    return h == kUnobserved || h > cfg.h_obj ? lo_flat
+                                             : std::max(lo_flat, static_cast<double>(h) + lo_flat);
+  };
 
   for (const Blob& blob : r.change.blobs) {
     CandidateChange cand;
@@ -875,7 +897,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       if (lo >= h_src) continue;  // the other map is as high here: this column did not change
       const double hi = static_cast<double>(h_src) + trunc;
       columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo - vs, hi, cfg.w_min, voxels);
-      ranges.push_back({c.x(), c.y(), -1, static_cast<float>(lo), h_src + static_cast<float>(vs)});
+      ranges.push_back({c.x(), c.y(), -1, static_cast<float>(std::max(lo, pointFloor(c))),
+                        h_src + static_cast<float>(vs)});
     }
     cand.target_object_overlap =
         blob.cells.empty() ? 0.0 : static_cast<double>(on_target_objects) / blob.cells.size();
@@ -909,7 +932,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
     // Structure passing through the band in both maps (design.md, "Structure through the band").
     if (val.verdict != BlobValidation::Verdict::Changed &&
-        throughBand(top_cells, top_on_top, static_cast<int>(blob.cells.size()), cfg))
+        throughBand(top_cells, top_on_top, static_cast<int>(blob.cells.size()), cfg) &&
+        topFraction(ht, target_labels, target_label_cells(), band_top) >= cfg.through_band_top)
       continue;
     // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
     // cluster, is a change only on 3D evidence (verdict Changed): without it, its height
@@ -1046,7 +1070,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           if (is_owned[l]) continue;
           if (owner[l] < 0) {
             owner[l] = o.owner;
-            lo_d[l] = static_cast<float>(lo_flat);
+            lo_d[l] = static_cast<float>(pointFloor(Eigen::Vector2i(nx, ny)));
             hi_d[l] = o.hi;
           } else if (owner[l] == o.owner) {
             hi_d[l] = std::max(hi_d[l], o.hi);
@@ -1098,12 +1122,56 @@ int typeOrder(ChangeType t) {
   return static_cast<int>(t);
 }
 
+/// 1 cm cells of a region's points (world), as keys.
+std::unordered_set<std::uint64_t> pointCells(const ChangeRegion& r) {
+  constexpr double kCell = 0.01;
+  std::unordered_set<std::uint64_t> cells;
+  for (const Eigen::Vector3f& p : r.points) {
+    if (!p.allFinite()) continue;
+    const Eigen::Vector3i c = (p.cast<double>() / kCell).array().floor().cast<int>();
+    cells.insert((static_cast<std::uint64_t>(c.x() & 0x1fffff) << 42) |
+                 (static_cast<std::uint64_t>(c.y() & 0x1fffff) << 21) |
+                 static_cast<std::uint64_t>(c.z() & 0x1fffff));
+  }
+  return cells;
+}
+
+/// The same object in the bands of two planes (design.md, "One object, one event"): of the
+/// candidates of one direction on different planes sharing at least half of the smaller one's
+/// point cells, the one with the stronger 3D evidence (Changed before Unknown, then more scored
+/// key voxels, then more points) stays; the others are marked used.
+void dropDuplicates(const std::vector<CandidateChange>& c, std::vector<bool>& used) {
+  std::vector<std::unordered_set<std::uint64_t>> cells;
+  cells.reserve(c.size());
+  for (const CandidateChange& x : c) cells.push_back(pointCells(x.region));
+  const auto stronger = [&](std::size_t a, std::size_t b) {
+    const ChangeRegion &ra = c[a].region, &rb = c[b].region;
+    const bool ca = ra.verdict == BlobValidation::Verdict::Changed;
+    const bool cb = rb.verdict == BlobValidation::Verdict::Changed;
+    return std::make_tuple(ca, ra.scored, ra.points.size()) >
+           std::make_tuple(cb, rb.scored, rb.points.size());
+  };
+  for (std::size_t i = 0; i < c.size(); ++i)
+    for (std::size_t j = i + 1; j < c.size(); ++j) {
+      if (used[i] || used[j] || c[i].region.plane_id == c[j].region.plane_id) continue;
+      const auto& small = cells[i].size() <= cells[j].size() ? cells[i] : cells[j];
+      const auto& large = cells[i].size() <= cells[j].size() ? cells[j] : cells[i];
+      if (small.empty()) continue;
+      std::size_t shared = 0;
+      for (const std::uint64_t k : small) shared += large.count(k);
+      if (2 * shared < small.size()) continue;
+      used[stronger(i, j) ? j : i] = true;
+    }
+}
+
 }  // namespace
 
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg) {
   std::vector<ChangeEvent> events;
   std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
+  dropDuplicates(removed, r_used);
+  dropDuplicates(added, a_used);
   const auto unknown = [](const CandidateChange& c) {
     return c.region.verdict == BlobValidation::Verdict::Unknown;
   };

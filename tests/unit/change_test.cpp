@@ -4,6 +4,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -364,6 +365,44 @@ TEST(AssembleEvents, TheSameObjectInPlaceIsNoEventUnlessTheOtherSideHas3DEvidenc
   EXPECT_FALSE(e[0].current.empty());
 }
 
+TEST(AssembleEvents, AnObjectInTheBandsOfTwoPlanesIsOneEvent) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // A 10 cm cube's surface points (2 mm grid on its top), found on plane 0 (Changed) and on
+  // plane 3 (Unknown, with a 3 cm margin of another surface); and a cube 20 cm away on plane 3.
+  const auto cube = [](float x0, float margin) {
+    std::vector<Eigen::Vector3f> pts;
+    for (int j = 0; j < 50; ++j)
+      for (int i = 0; i < 50 + static_cast<int>(margin / 0.002f); ++i)
+        pts.emplace_back(x0 + 0.002f * i, 0.002f * j, 0.1f);
+    return pts;
+  };
+  const auto on = [](int plane, V verdict, std::vector<Eigen::Vector3f> pts) {
+    CandidateChange c;
+    c.region.plane_id = c.target_plane_id = plane;
+    c.region.verdict = verdict;
+    c.region.points = std::move(pts);
+    c.region.columns = {Eigen::Vector2i(plane, 0)};
+    c.target_columns = c.region.columns;
+    return c;
+  };
+  const auto e =
+      assembleEvents({},
+                     {on(3, V::Unknown, cube(0.0f, 0.03f)), on(0, V::Changed, cube(0.0f, 0.0f)),
+                      on(3, V::Changed, cube(0.3f, 0.0f))},
+                     cfg);
+  ASSERT_EQ(e.size(), 2u);
+  EXPECT_EQ(e[0].current.plane_id, 0);  // the one with 3D evidence
+  EXPECT_EQ(e[1].current.plane_id, 3);
+  EXPECT_GT(e[1].current.points.front().x(), 0.25f);
+  // On one plane, two candidates stay two events (blobs of one plane are disjoint objects).
+  EXPECT_EQ(
+      assembleEvents(
+          {}, {on(3, V::Changed, cube(0.0f, 0.0f)), on(3, V::Changed, cube(0.0f, 0.03f))}, cfg)
+          .size(),
+      2u);
+}
+
 // ---- other planes' surfaces in a plane's maps ------------------------------------------------
 
 /// A floor whose volume holds the height field `h(x, y)` (world = floor frame, 7 mm voxels).
@@ -610,6 +649,76 @@ TEST(ComparePlanePair, AChangesPointsComeFromTheChunksItsRegionMeets) {
   ASSERT_EQ(grown.size(), 1u);
   EXPECT_EQ(grown[0].region.points, onTop(src_pts, 0.08f));
   EXPECT_EQ(grown[0].region.points.back(), Eigen::Vector3f(0.12f, 0.12f, 0.08f));
+}
+
+TEST(ComparePlanePair, StructureThroughTheBandIsThroughItInBothMaps) {
+  // A bottle (body r 5 cm, 20 cm high, neck r 2.5 cm through the band's top) without 3D
+  // evidence either way (min_scored unreachable: Unknown). Replaced by a cone (r 5.5 cm, cut by
+  // the band) whose tip alone reaches the top, it is a change; against a narrower column through
+  // the band (a leg whose outline differs between sessions) it is structure and dropped.
+  const auto radius = [](double u, double v) { return std::hypot(u - 0.1, v - 0.1); };
+  const auto bottle = [&](double u, double v) {
+    const double r = radius(u, v);
+    return r < 0.025 ? 0.4 : r < 0.05 ? 0.2 : 0.0;
+  };
+  const auto cone = [&](double u, double v) {
+    return std::max(0.0, 0.35 * (1.0 - radius(u, v) / 0.055));
+  };
+  const auto column = [&](double u, double v) { return radius(u, v) < 0.035 ? 0.4 : 0.0; };
+  const PlaneSdf before = floorWith(bottle);
+  Config cfg;
+  DetectOptions opt;
+  opt.keep_stages = true;
+  opt.validation.min_scored = 1 << 20;
+  PlaneMatch match;
+  match.source_id = match.target_id = 0;
+  const PlaneMaps src = computePlaneMaps(before, {before}, cfg);
+  for (const bool replaced : {true, false}) {
+    SCOPED_TRACE(replaced);
+    const PlaneSdf after = floorWith(replaced ? std::function<double(double, double)>(cone)
+                                              : std::function<double(double, double)>(column));
+    const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg);
+    PlanePairResult res;
+    const std::vector<CandidateChange> out =
+        comparePlanePair(before, src, after, tgt, match, false, {}, {}, cfg, opt, &res);
+    ASSERT_EQ(res.change.blobs.size(), 1u);
+    ASSERT_EQ(res.validations.size(), 1u);
+    EXPECT_EQ(res.validations[0].verdict, BlobValidation::Verdict::Unknown);
+    EXPECT_EQ(out.size(), replaced ? 1u : 0u);
+  }
+}
+
+TEST(ComparePlanePair, AnEventsPointsStartAboveTheOtherMapsFlatSurface) {
+  // A platform 8 mm high (flat: below h_obj; a shelf's back panel in front of its wall) in both
+  // maps, and on it a box that is new. The added region holds the box's points, not the
+  // platform's around it, which both maps have.
+  const auto platform = [](double u, double v) {
+    return std::abs(u) < 0.3 && std::abs(v) < 0.3 ? 0.008 : 0.0;
+  };
+  const auto with_box = [&](double u, double v) {
+    return std::abs(u - 0.1) < 0.04 && std::abs(v - 0.1) < 0.04 ? 0.08 : platform(u, v);
+  };
+  const PlaneSdf before = floorWith(platform), after = floorWith(with_box);
+  std::vector<Eigen::Vector3f> pts;  // the platform on a 2 mm grid around the box, its top
+  for (int j = 0; j <= 100; ++j)
+    for (int i = 0; i <= 100; ++i) {
+      const float u = 0.1f + 0.002f * (i - 50), v = 0.1f + 0.002f * (j - 50);
+      const bool on_box = std::abs(u - 0.1f) < 0.04f && std::abs(v - 0.1f) < 0.04f;
+      pts.emplace_back(u, v, on_box ? 0.08f : 0.008f);
+    }
+  const Config cfg;
+  PlaneMatch match;
+  match.source_id = match.target_id = 0;
+  const PlaneMaps src = computePlaneMaps(after, {after}, cfg);
+  const PlaneMaps tgt = computePlaneMaps(before, {before}, cfg);
+  const std::vector<CandidateChange> out =
+      comparePlanePair(after, src, before, tgt, match, false, pts, {}, cfg, {}, nullptr);
+  ASSERT_EQ(out.size(), 1u);
+  const auto& region_pts = out[0].region.points;
+  EXPECT_GT(region_pts.size(), 1000u);
+  const auto on_platform = std::count_if(region_pts.begin(), region_pts.end(),
+                                         [](const Eigen::Vector3f& p) { return p.z() < 0.05f; });
+  EXPECT_EQ(on_platform, 0) << "of " << region_pts.size();
 }
 
 TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
