@@ -679,7 +679,7 @@ bool hasCore(const Blob& blob, int cells) {
 /// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
 /// off as in place: the object moved by a few cm (design.md, "Small moves"). Cells the target
 /// did not observe at a shift are not compared; a shift comparing fewer than 80 % of the cells
-/// is not a fit.
+/// is not a fit, and an object the target observed too little of in place is no move.
 bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
                    const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
                    int max_shift) {
@@ -711,6 +711,7 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
                                     : std::numeric_limits<double>::infinity();
   };
   const double in_place = misfit(0, 0);
+  if (!std::isfinite(in_place)) return false;  // too little of it comparable in place
   double best = in_place;
   int best_d2 = 0;
   for (int dy = -max_shift; dy <= max_shift; ++dy)
