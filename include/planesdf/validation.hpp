@@ -100,9 +100,9 @@ struct ValidationParams {
   /// below δ_blob and made them "changed"; real changes there score 16 to 30 key voxels.
   int min_scored = 3;
   /// min_scored where either map was splatted from a cloud without a pixel grid (Map::splatted):
-  /// its SDF carries the noise of the points, and a static object's rims in a raw or
-  /// reconstructed cloud scored "changed" from 3-5 key voxels (design.md, "3D verdicts").
-  int min_scored_splatted = 8;
+  /// its SDF carries the noise of the points, and static objects in a raw or reconstructed
+  /// cloud scored "changed" from 3-11 key voxels (design.md, "3D verdicts").
+  int min_scored_splatted = 12;
 };
 
 /// Length of a feature: 3 N_θ N_φ N_λ + 1 (451 with the defaults). Throws planesdf::Error when a

@@ -1137,11 +1137,22 @@ std::unordered_set<std::uint64_t> pointCells(const ChangeRegion& r) {
   return cells;
 }
 
+/// Appends the points of `from` that `into` does not hold.
+void mergePoints(std::vector<Eigen::Vector3f>& into, const std::vector<Eigen::Vector3f>& from) {
+  const auto less = [](const Eigen::Vector3f& a, const Eigen::Vector3f& b) {
+    return std::tie(a.x(), a.y(), a.z()) < std::tie(b.x(), b.y(), b.z());
+  };
+  std::vector<Eigen::Vector3f> sorted = into;
+  std::sort(sorted.begin(), sorted.end(), less);
+  for (const Eigen::Vector3f& p : from)
+    if (!std::binary_search(sorted.begin(), sorted.end(), p, less)) into.push_back(p);
+}
+
 /// The same object in the bands of two planes (design.md, "One object, one event"): of the
 /// candidates of one direction on different planes sharing at least half of the smaller one's
 /// point cells, the one with the stronger 3D evidence (Changed before Unknown, then more scored
-/// key voxels, then more points) stays; the others are marked used.
-void dropDuplicates(const std::vector<CandidateChange>& c, std::vector<bool>& used) {
+/// key voxels, then more points) stays with the others' points; the others are marked used.
+void dropDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
   std::vector<std::unordered_set<std::uint64_t>> cells;
   cells.reserve(c.size());
   for (const CandidateChange& x : c) cells.push_back(pointCells(x.region));
@@ -1161,7 +1172,9 @@ void dropDuplicates(const std::vector<CandidateChange>& c, std::vector<bool>& us
       std::size_t shared = 0;
       for (const std::uint64_t k : small) shared += large.count(k);
       if (2 * shared < small.size()) continue;
-      used[stronger(i, j) ? j : i] = true;
+      const std::size_t keep = stronger(i, j) ? i : j, drop = keep == i ? j : i;
+      mergePoints(c[keep].region.points, c[drop].region.points);
+      used[drop] = true;
     }
 }
 

@@ -392,7 +392,8 @@ TEST(AssembleEvents, AnObjectInTheBandsOfTwoPlanesIsOneEvent) {
                       on(3, V::Changed, cube(0.3f, 0.0f))},
                      cfg);
   ASSERT_EQ(e.size(), 2u);
-  EXPECT_EQ(e[0].current.plane_id, 0);  // the one with 3D evidence
+  EXPECT_EQ(e[0].current.plane_id, 0);  // the one with 3D evidence, with the other's points
+  EXPECT_EQ(e[0].current.points.size(), cube(0.0f, 0.03f).size());
   EXPECT_EQ(e[1].current.plane_id, 3);
   EXPECT_GT(e[1].current.points.front().x(), 0.25f);
   // On one plane, two candidates stay two events (blobs of one plane are disjoint objects).
