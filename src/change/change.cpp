@@ -1261,8 +1261,17 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       appendRegion(e.current, added[j].region);
     }
     if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
-        !r.target_object.empty())
+        !r.target_object.empty()) {
       e.current = std::move(r.target_object);
+      // An added candidate on those objects (the part of a wider new object around the old
+      // footprint) is this replacement, not another event (design.md, "One object, one event").
+      for (std::size_t j = 0; j < added.size(); ++j) {
+        if (a_used[j] || added[j].region.plane_id != r.target_plane_id) continue;
+        if (!columnsOverlap(e.current.columns, added[j].region.columns)) continue;
+        a_used[j] = true;
+        mergePoints(e.current.points, added[j].region.points);
+      }
+    }
     if (e.current.empty()) continue;
     r_used[i] = true;
     e.type = ChangeType::Replaced;

@@ -404,6 +404,26 @@ TEST(AssembleEvents, AnObjectInTheBandsOfTwoPlanesIsOneEvent) {
       2u);
 }
 
+TEST(AssembleEvents, ANewObjectWiderThanTheOldOneIsTheReplacementNotAnotherEvent) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // The old object's blob lands on columns 0-1 of a new, wider object (columns 0-3); the new
+  // one's added blob is only the ring around the old footprint (columns 2-3).
+  CandidateChange old_one = candidate(V::Changed, false);
+  old_one.target_columns = {Eigen::Vector2i(0, 0), Eigen::Vector2i(1, 0)};
+  old_one.target_object_overlap = 1.0;
+  old_one.target_object.plane_id = 0;
+  for (int x = 0; x < 4; ++x) old_one.target_object.columns.emplace_back(x, 0);
+  old_one.target_object.points = {Eigen::Vector3f(0.0f, 0.0f, 0.1f)};
+  CandidateChange ring = candidate(V::Changed, false);
+  ring.region.columns = {Eigen::Vector2i(2, 0), Eigen::Vector2i(3, 0)};
+  ring.region.points = {Eigen::Vector3f(0.0f, 0.0f, 0.1f), Eigen::Vector3f(0.03f, 0.0f, 0.1f)};
+  const auto e = assembleEvents({old_one}, {ring}, cfg);
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].type, ChangeType::Replaced);
+  EXPECT_EQ(e[0].current.points.size(), 2u);  // the object's, and the ring's it did not hold
+}
+
 // ---- other planes' surfaces in a plane's maps ------------------------------------------------
 
 /// A floor whose volume holds the height field `h(x, y)` (world = floor frame, 7 mm voxels).
