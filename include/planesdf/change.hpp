@@ -321,14 +321,14 @@ bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eig
 
 /// Turns removed and added candidates into events. One object in the bands of two planes first:
 /// of candidates of one direction on different planes sharing half or more of the smaller one's
-/// points (1 cm cells), the one with the stronger 3D evidence stays. Static next: Unknown
-/// candidates with same_in_place and no Changed candidate of the other direction on their
-/// footprint, and removed + added Unknown pairs of one shape in one place, are no event. Then moved
-/// pairs (shapeDistance below kMovedShapeDistance, greedy by distance), then replaced (a removed
-/// candidate with the added candidates its mapped footprint overlaps; or, with none, the current
-/// objects it lands on when they cover at least kReplacedMinOverlap of it), then the rest. Ids 1..N
-/// in order of (type, primary plane id, centroid); confidences from cfg.delta_blob (see
-/// ChangeEvent::confidence).
+/// points (1 cm cells), the one with the stronger 3D evidence stays with the other's points.
+/// Static next: Unknown candidates with same_in_place and no Changed candidate of the other
+/// direction on their footprint, and removed + added Unknown pairs of one shape in one place, are
+/// no event. Then moved pairs (shapeDistance below kMovedShapeDistance, greedy by distance), then
+/// replaced (a removed candidate with the added candidates its mapped footprint overlaps; or, with
+/// none, the current objects it lands on when they cover at least kReplacedMinOverlap of it, with
+/// the added candidates on those objects), then the rest. Ids 1..N in order of (type, primary
+/// plane id, centroid); confidences from cfg.delta_blob (see ChangeEvent::confidence).
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg);
 

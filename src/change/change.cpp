@@ -1152,7 +1152,7 @@ void mergePoints(std::vector<Eigen::Vector3f>& into, const std::vector<Eigen::Ve
 /// candidates of one direction on different planes sharing at least half of the smaller one's
 /// point cells, the one with the stronger 3D evidence (Changed before Unknown, then more scored
 /// key voxels, then more points) stays with the others' points; the others are marked used.
-void dropDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
+void mergeDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
   std::vector<std::unordered_set<std::uint64_t>> cells;
   cells.reserve(c.size());
   for (const CandidateChange& x : c) cells.push_back(pointCells(x.region));
@@ -1184,8 +1184,8 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg) {
   std::vector<ChangeEvent> events;
   std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
-  dropDuplicates(removed, r_used);
-  dropDuplicates(added, a_used);
+  mergeDuplicates(removed, r_used);
+  mergeDuplicates(added, a_used);
   const auto unknown = [](const CandidateChange& c) {
     return c.region.verdict == BlobValidation::Verdict::Unknown;
   };
