@@ -725,6 +725,41 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
   return best_d2 >= min_shift * min_shift && best <= 0.5 * in_place;
 }
 
+/// The target objects standing inside the footprint of the source objects `labels` (together
+/// smaller than `large_cells`): per target label, its cells the footprint covers, for those
+/// covered at least half (design.md, "Replaced inside the footprint"). `covered` receives the
+/// footprint's cells landing on them.
+std::map<int, int> objectsInFootprint(const HeightMap& hs, const ObjectMap& os,
+                                      const std::vector<int>& labels, const HeightMap& ht,
+                                      const ObjectMap& ot, const Pose& T, int large_cells,
+                                      std::vector<std::size_t>* covered) {
+  std::map<int, int> landed;
+  std::vector<std::size_t> cells;
+  int footprint = 0;
+  for (const int label : labels) {
+    const ObjectInfo& o = os.object(label);
+    for (int y = o.bbox_min.y(); y <= o.bbox_max.y(); ++y)
+      for (int x = o.bbox_min.x(); x <= o.bbox_max.x(); ++x) {
+        if (os.at(x, y) != label) continue;
+        ++footprint;
+        Eigen::Vector2i tc;
+        targetHeight(ht, T, hs.cellCenter(x, y), std::max(0.0f, hs.at(x, y)), &tc);
+        if (!ht.inBounds(tc.x(), tc.y())) continue;
+        const int t = ot.at(tc.x(), tc.y());
+        if (t == 0) continue;
+        ++landed[t];
+        cells.push_back(ht.index(tc.x(), tc.y()));
+      }
+  }
+  if (footprint == 0 || footprint >= large_cells) return {};
+  for (auto it = landed.begin(); it != landed.end();)
+    it = 2 * it->second >= ot.object(it->first).area ? std::next(it) : landed.erase(it);
+  if (covered != nullptr)
+    for (const std::size_t c : cells)
+      if (landed.count(ot.labels[c]) > 0) covered->push_back(c);
+  return landed;
+}
+
 int surfaceRimCells(const Map& map) {
   return map.splatted() ? static_cast<int>(std::ceil(map.config().splat_radius_voxels)) : 0;
 }
@@ -948,6 +983,16 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         !shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
                        small_move_cells))
       continue;
+
+    // A sliver of an object whose loss has 3D evidence, with another object standing inside the
+    // old footprint now: that object replaced it (design.md, "Replaced inside the footprint").
+    if (target_labels.empty() && blob.partial && val.verdict == BlobValidation::Verdict::Changed) {
+      std::vector<std::size_t> covered;
+      target_labels =
+          objectsInFootprint(hs, os, blob.object_labels, ht, ot, T, large_cells, &covered);
+      landed_cells.insert(landed_cells.end(), covered.begin(), covered.end());
+      if (!target_labels.empty()) cand.target_object_overlap = 1.0;
+    }
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
     reg.voxels = std::move(voxels);
@@ -1262,6 +1307,16 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     }
     if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
         !r.target_object.empty()) {
+      // Another sliver of the same old object, replaced by the same new one: one event.
+      const auto same = std::find_if(events.begin(), events.end(), [&](const ChangeEvent& o) {
+        return o.type == ChangeType::Replaced && o.current.plane_id == r.target_object.plane_id &&
+               columnsOverlap(o.current.columns, r.target_object.columns);
+      });
+      if (same != events.end()) {
+        r_used[i] = true;
+        appendRegion(same->reference, r.region);
+        continue;
+      }
       e.current = std::move(r.target_object);
       // An added candidate on those objects (the part of a wider new object around the old
       // footprint) is this replacement, not another event (design.md, "One object, one event").

@@ -424,6 +424,31 @@ TEST(AssembleEvents, ANewObjectWiderThanTheOldOneIsTheReplacementNotAnotherEvent
   EXPECT_EQ(e[0].current.points.size(), 2u);  // the object's, and the ring's it did not hold
 }
 
+TEST(AssembleEvents, TwoSliversOfAnObjectReplacedByOneNewObjectAreOneEvent) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // Two slivers of one old object (columns 10-11 and 20-21) each with the new object inside the
+  // old footprint (columns 12-19) as their replacement: one replaced event holding both.
+  std::vector<CandidateChange> slivers;
+  for (const int x0 : {10, 20}) {
+    CandidateChange c = candidate(V::Changed, false);
+    c.region.columns = {Eigen::Vector2i(x0, 0), Eigen::Vector2i(x0 + 1, 0)};
+    c.region.points = {Eigen::Vector3f(0.01f * static_cast<float>(x0), 0.0f, 0.1f)};
+    c.target_columns = c.region.columns;
+    c.target_object_overlap = 1.0;
+    c.target_object.plane_id = 0;
+    for (int x = 12; x < 20; ++x) c.target_object.columns.emplace_back(x, 0);
+    c.target_object.points = {Eigen::Vector3f(0.15f, 0.0f, 0.1f)};
+    slivers.push_back(std::move(c));
+  }
+  const auto e = assembleEvents(slivers, {}, cfg);
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].type, ChangeType::Replaced);
+  EXPECT_EQ(e[0].reference.columns.size(), 4u);
+  EXPECT_EQ(e[0].reference.points.size(), 2u);
+  EXPECT_EQ(e[0].current.points.size(), 1u);
+}
+
 // ---- other planes' surfaces in a plane's maps ------------------------------------------------
 
 /// A floor whose volume holds the height field `h(x, y)` (world = floor frame, 7 mm voxels).
@@ -740,6 +765,48 @@ TEST(ComparePlanePair, AnEventsPointsStartAboveTheOtherMapsFlatSurface) {
   const auto on_platform = std::count_if(region_pts.begin(), region_pts.end(),
                                          [](const Eigen::Vector3f& p) { return p.z() < 0.05f; });
   EXPECT_EQ(on_platform, 0) << "of " << region_pts.size();
+}
+
+TEST(ComparePlanePair, AnObjectStandingInsideAChangedSliversOldFootprintReplacedIt) {
+  // Splatted maps (rim of one cell): a 4.5 cm disc of radius 11 cm, then a 4 cm box of 12 x 15
+  // cm in its place. Only the disc's ring around the box differs (3.5-5 cm wide, wider than a
+  // rim), as slivers of the disc; the box inside the old footprint is the replacement, one
+  // event. A disc simply taken away is removed, with nothing replacing it.
+  const auto disc = [](double u, double v) { return std::hypot(u, v) < 0.11 ? 0.045 : 0.0; };
+  const auto box = [](double u, double v) {
+    return std::abs(u) < 0.06 && std::abs(v) < 0.075 ? 0.04 : 0.0;
+  };
+  const PlaneSdf before = floorWith(disc);
+  const Config cfg;
+  DetectOptions opt;
+  opt.keep_stages = true;
+  opt.validation.min_scored_splatted = opt.validation.min_scored;
+  PlaneMatch match;
+  match.source_id = match.target_id = 0;
+  const PlaneMaps src = computePlaneMaps(before, {before}, cfg, nullptr, 1);
+  for (const bool replaced : {true, false}) {
+    SCOPED_TRACE(replaced);
+    const PlaneSdf after = floorWith(replaced ? std::function<double(double, double)>(box)
+                                              : [](double, double) { return 0.0; });
+    const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg, nullptr, 1);
+    PlanePairResult res;
+    const std::vector<CandidateChange> out =
+        comparePlanePair(before, src, after, tgt, match, false, {}, {}, cfg, opt, &res);
+    ASSERT_FALSE(out.empty());
+    const std::vector<ChangeEvent> events = assembleEvents(out, {}, cfg);
+    ASSERT_EQ(events.size(), 1u);
+    if (!replaced) {
+      EXPECT_EQ(events[0].type, ChangeType::Removed);
+      continue;
+    }
+    ASSERT_FALSE(res.change.blobs.empty());
+    EXPECT_TRUE(res.change.blobs[0].partial);
+    EXPECT_EQ(events[0].type, ChangeType::Replaced);
+    // The box's columns (17 x 21 cells).
+    const auto n = static_cast<int>(events[0].current.columns.size());
+    EXPECT_GE(n, 17 * 21 * 9 / 10);
+    EXPECT_LE(n, 18 * 22);
+  }
 }
 
 TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
