@@ -658,14 +658,7 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   // Model selection: keep the initial T unless the evidence is clear — the best candidate must
   // remove at least kMinGainFraction of the initial mismatches and kMinGainCells cells (changed
   // objects mismatch wherever they are put; only drift makes a shift pay off substantially).
-  // The best candidate's mismatches are taken per sample it compares, scaled to the initial
-  // overlap: agreeing samples it moves off the observed target are no evidence either way, and
-  // counting them as agreeing passed shifts that only traded overlap for chance agreements on
-  // narrow shelf boards with noisy edges (design.md, "In-plane refinement").
-  const double best_at_initial_overlap =
-      best.compared > 0 ? static_cast<double>(best.mismatches) * initial.compared / best.compared
-                        : static_cast<double>(initial.mismatches);
-  const double gain = initial.mismatches - best_at_initial_overlap;
+  const int gain = initial.mismatches - best.mismatches;
   if (gain < kMinGainCells || (gain < kMinGainFraction * initial.mismatches &&
                                gain < kMinGainSigmas * std::sqrt(initial.mismatches)))
     return out;
