@@ -113,14 +113,16 @@ class Map {
   /// Fuses one depth frame (camera-to-world pose, OpenCV optical camera frame): per-frame RANSAC
   /// planes merged into the map's planes (stable ids), then projective fusion into every plane
   /// volume, touching only blocks inside the camera frustum and depth range.
-  /// Throws planesdf::Error on a malformed frame (bad intrinsics, wrong buffer size).
+  /// Throws planesdf::Error on a malformed frame (bad intrinsics, wrong buffer size) and on a
+  /// pose that is not finite or not rigid (rotation orthonormal with determinant +1 within 1e-4).
   IntegrateStats integrate(const DepthFrame& frame, const Pose& camera_to_world);
 
   /// Fuses a point cloud whose points are in its own frame; `cloud_to_world` places that frame.
   /// Organised clouds (height > 1) are a frame seen from cloud.sensor_pose: fused projectively
   /// (free space carved) with intrinsics estimated from the pixel grid. Unorganised clouds get
   /// PCA normals (oriented toward the sensor when known) and are splatted along them; their planes
-  /// come from whole-cloud detection. Throws planesdf::Error on an inconsistent cloud.
+  /// come from whole-cloud detection. Throws planesdf::Error on an inconsistent cloud and when
+  /// `cloud_to_world` or cloud.sensor_pose is not finite or not rigid (as above).
   IntegrateStats integrate(const PointCloud& cloud, const Pose& cloud_to_world);
 
   /// The map of one whole scene cloud in the world frame: planes by whole-cloud detection (PCA

@@ -27,6 +27,8 @@ namespace fs = std::filesystem;
 
 constexpr double kDefaultDepthScale = 1000.0;
 constexpr int kMaxImageSide = 16384;
+/// A ground-truth quaternion may deviate this much from unit length (rounding of its decimals).
+constexpr double kQuaternionNormTolerance = 1e-3;
 
 // ---- text helpers -------------------------------------------------------------------------------
 
@@ -110,6 +112,14 @@ std::string formatShortest(double value) {
   return std::string(buf.data(), result.ptr);
 }
 
+/// `value` with six significant digits (locale-independent).
+std::string formatGeneral6(double value) {
+  std::array<char, 64> buf{};
+  const auto result =
+      std::to_chars(buf.data(), buf.data() + buf.size(), value, std::chars_format::general, 6);
+  return std::string(buf.data(), result.ptr);
+}
+
 /// `value` with exactly six decimals (locale-independent); `value` must be finite.
 std::string formatFixed6(double value) {
   std::array<char, 512> buf{};  // enough for any finite double in fixed notation
@@ -168,10 +178,15 @@ std::vector<StampedPose> readGroundTruth(const std::string& path) {
     // TUM order is qx qy qz qw; Eigen's constructor takes w first.
     Eigen::Quaterniond q(v[7], v[4], v[5], v[6]);
     const double norm = q.coeffs().stableNorm();
+    const std::string quaternion = "quaternion (" + std::string(line.tokens[4]) + " " +
+                                   std::string(line.tokens[5]) + " " + std::string(line.tokens[6]) +
+                                   " " + std::string(line.tokens[7]) + ")";
     if (!std::isfinite(norm) || norm < 1e-9)
-      throw Error(path, lineTag(line.number) + "quaternion (" + std::string(line.tokens[4]) + " " +
-                            std::string(line.tokens[5]) + " " + std::string(line.tokens[6]) + " " +
-                            std::string(line.tokens[7]) + ") has zero or non-finite length");
+      throw Error(path, lineTag(line.number) + quaternion + " has zero or non-finite length");
+    // Rounded decimals are normalised; a length further from 1 is no rotation written down.
+    if (std::abs(norm - 1.0) > kQuaternionNormTolerance)
+      throw Error(path, lineTag(line.number) + quaternion + " has length " + formatGeneral6(norm) +
+                            ", not 1 (within 0.001)");
     q.coeffs() /= norm;
     poses.push_back({v[0], Eigen::Vector3d(v[1], v[2], v[3]), q});
   }

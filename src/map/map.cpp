@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <functional>
 
@@ -96,6 +97,34 @@ void checkFrame(const DepthFrame& frame) {
     throw Error("depth frame", "holds " + std::to_string(frame.depth.size()) +
                                    " depth values for a " + std::to_string(frame.intrinsics.width) +
                                    "x" + std::to_string(frame.intrinsics.height) + " image");
+}
+
+/// Largest deviation of a pose's rotation from orthonormality (and of its determinant from +1)
+/// that integrate() accepts: a quaternion or matrix written with a few decimals passes, a scale,
+/// shear or reflection does not.
+constexpr double kRigidTolerance = 1e-4;
+
+/// Throws Error(what, ...) unless `pose` is finite and rigid (R^T R = I, det R = +1 within
+/// kRigidTolerance). A NaN or non-rigid pose would otherwise drop or distort the whole frame.
+void checkPose(const Pose& pose, const char* what) {
+  const Eigen::Matrix3d R = pose.linear();
+  if (!R.allFinite() || !pose.translation().allFinite())
+    throw Error(what, "is not finite (NaN or infinite entries)");
+  const double skew = (R.transpose() * R - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  const double det = R.determinant();
+  char text[160];
+  if (!(skew <= kRigidTolerance)) {
+    std::snprintf(text, sizeof text,
+                  "rotation is not orthonormal (|R^T R - I| up to %.3g, tolerance %g): not a "
+                  "rigid motion",
+                  skew, kRigidTolerance);
+    throw Error(what, text);
+  }
+  if (!(std::abs(det - 1.0) <= kRigidTolerance)) {
+    std::snprintf(text, sizeof text,
+                  "rotation has determinant %.3g, not +1: a reflection is not a rigid motion", det);
+    throw Error(what, text);
+  }
 }
 
 /// Orients splat normals of an unorganised cloud without a sensor: toward the plane's free side
@@ -463,6 +492,7 @@ IntegrateStats Map::fuseDepth(const DepthFrameAnalysis& analysis, const Pose& ca
 IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_world) {
   const auto t0 = Clock::now();
   checkFrame(frame);
+  checkPose(camera_to_world, "camera pose");
   thread_local std::vector<Eigen::Vector3f> points_scratch;
   std::vector<Eigen::Vector3f>& pts = points_scratch;  // this thread's buffer, reused per frame
   backProject(frame, camera_to_world, threadCount(cfg_), pts);
@@ -525,6 +555,8 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
                                    bool whole_cloud) {
   const auto t0 = Clock::now();
   cloud.validate("point cloud");
+  checkPose(cloud_to_world, "cloud pose");
+  checkPose(cloud.sensor_pose, "point cloud sensor_pose");
   // The cloud in the world frame (positions, normals and sensor pose moved together).
   PointCloud world;
   world.points = transformPoints(cloud.points, cloud_to_world);

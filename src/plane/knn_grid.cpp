@@ -67,6 +67,37 @@ std::size_t countOccupiedCells(const std::vector<Eigen::Vector3f>& points,
   return distinct;
 }
 
+// Per-axis extent of the bulk of points[indices]: four times the range between the 1st and 99th
+// percentiles of up to 8192 evenly spaced points, capped by the bounding box. The box of a
+// cloud without far points (any within 1.5 such ranges of the percentiles) is kept as it is; a
+// few far outliers do not stretch the extent, so the cells stay sized to the bulk's density.
+Eigen::Vector3d bulkExtent(const std::vector<Eigen::Vector3f>& points,
+                           const std::vector<std::uint32_t>& indices,
+                           const Eigen::AlignedBox3d& box) {
+  constexpr std::size_t kSample = 8192;
+  const std::size_t step = std::max<std::size_t>(1, indices.size() / kSample);
+  std::vector<float> values;
+  values.reserve(indices.size() / step + 1);
+  Eigen::Vector3d extent = box.sizes();
+  for (int axis = 0; axis < 3; ++axis) {
+    values.clear();
+    for (std::size_t i = 0; i < indices.size(); i += step)
+      values.push_back(points[indices[i]][axis]);
+    // The k-th smallest sample value.
+    const auto kth = [&](std::size_t k) {
+      const auto it = values.begin() + static_cast<std::ptrdiff_t>(k);
+      std::nth_element(values.begin(), it, values.end());
+      return static_cast<double>(*it);
+    };
+    // Rounded outward: samples of up to 101 points keep their minimum and maximum.
+    const double last = static_cast<double>(values.size() - 1);
+    const double lo = kth(static_cast<std::size_t>(std::floor(0.01 * last)));
+    const double hi = kth(static_cast<std::size_t>(std::ceil(0.99 * last)));
+    extent[axis] = std::min(extent[axis], 4.0 * (hi - lo));
+  }
+  return extent;
+}
+
 }  // namespace
 
 KnnGrid::KnnGrid(const std::vector<Eigen::Vector3f>& points,
@@ -101,7 +132,7 @@ double KnnGrid::suggestCell(const std::vector<Eigen::Vector3f>& points,
   if (indices.size() < 2) return 1.0;
   Eigen::AlignedBox3d box;
   for (std::uint32_t i : indices) box.extend(points[i].cast<double>());
-  const Eigen::Vector3d size = box.sizes();
+  const Eigen::Vector3d size = bulkExtent(points, indices, box);
   const double diag = std::max(size.norm(), 1e-6);
   const Eigen::Vector3d clamped = size.cwiseMax(diag * 1e-3);
   const double n = static_cast<double>(indices.size());

@@ -18,7 +18,9 @@ class KnnGrid {
           double cell);
 
   /// A cell size about 1.3 times the median k-th neighbour distance (estimated from the cell
-  /// occupancy, then calibrated on exact k-NN queries of ~256 points).
+  /// occupancy, then calibrated on exact k-NN queries of ~256 points). The first estimate comes
+  /// from the extent of the bulk of the points (per-axis percentiles), so far outliers do not
+  /// inflate the cells.
   static double suggestCell(const std::vector<Eigen::Vector3f>& points,
                             const std::vector<std::uint32_t>& indices, int k);
 

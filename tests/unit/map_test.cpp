@@ -475,6 +475,70 @@ TEST(Map, BadFramesAreErrors) {
   EXPECT_THROW(Map{bad}, Error);
 }
 
+/// The what() of the planesdf::Error `f` throws, or "no error".
+template <typename F>
+std::string errorOf(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "no error";
+}
+
+TEST(Map, NanAndNonRigidPosesAreErrorsThatLeaveTheMapUnchanged) {
+  // A NaN pose would drop the frame and a scaled, sheared or mirrored one distort it: both are
+  // refused before anything is fused, naming the pose and what is wrong with it.
+  Map m = Map::deserialize(tableMap().serialize(), "mem");
+  const std::string before = m.serialize();
+  const Pose T = test::lookAt({0.9, 0.3, 1.3}, {0, 0, 0.75});
+  const DepthFrame f = test::renderDepth(tableScene(), Intrinsics{}, T);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  Pose nan_t = T, nan_r = T, inf_t = T, scaled = T, sheared = T, mirrored = T;
+  nan_t.translation().x() = nan;
+  nan_r.linear()(1, 2) = nan;
+  inf_t.translation().z() = std::numeric_limits<double>::infinity();
+  scaled.linear() *= 1.01;
+  sheared.linear() = T.linear() * (Eigen::Matrix3d() << 1, 0.01, 0, 0, 1, 0, 0, 0, 1).finished();
+  mirrored.linear() = T.linear() * Eigen::Vector3d(1, 1, -1).asDiagonal();
+  for (const Pose& p : {nan_t, nan_r, inf_t})
+    EXPECT_EQ(errorOf([&] { m.integrate(f, p); }),
+              "camera pose: is not finite (NaN or infinite entries)");
+  for (const Pose& p : {scaled, sheared}) {
+    const std::string what = errorOf([&] { m.integrate(f, p); });
+    EXPECT_EQ(what.rfind("camera pose: rotation is not orthonormal", 0), 0u) << what;
+  }
+  EXPECT_EQ(errorOf([&] { m.integrate(f, mirrored); }),
+            "camera pose: rotation has determinant -1, not +1: a reflection is not a rigid motion");
+  EXPECT_EQ(m.frames(), tableMap().frames());
+  EXPECT_EQ(m.serialize(), before);
+
+  // Unorganised clouds: the pose placing the cloud and the cloud's own sensor pose.
+  PointCloud cloud;
+  for (int i = 0; i < 2000; ++i)
+    cloud.points.emplace_back(0.001f * static_cast<float>(i % 50),
+                              0.001f * static_cast<float>(i / 50), 0.8f);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  EXPECT_EQ(errorOf([&] { m.integrate(cloud, nan_t); }),
+            "cloud pose: is not finite (NaN or infinite entries)");
+  EXPECT_EQ(errorOf([&] { m.integrate(cloud, mirrored); }).rfind("cloud pose: rotation has", 0),
+            0u);
+  cloud.sensor_pose = scaled;
+  EXPECT_EQ(errorOf([&] {
+              m.integrate(cloud, Pose::Identity());
+            }).rfind("point cloud sensor_pose: rotation is not orthonormal", 0),
+            0u);
+  EXPECT_THROW(Map::fromCloud(cloud, Config{}), Error);
+  EXPECT_EQ(m.serialize(), before);
+
+  // A rotation rounded to float precision (|R^T R - I| ~ 1e-7) is rigid: fused as given.
+  Pose rounded = T;
+  rounded.linear() = T.linear().cast<float>().cast<double>();
+  const IntegrateStats s = m.integrate(f, rounded);
+  EXPECT_GT(s.blocks_updated, 0u);
+  EXPECT_EQ(m.frames(), tableMap().frames() + 1);
+}
+
 TEST(CellBitSet, HoldsExactlyTheInsertedCells) {
   // Random cells around the key origin (2^20 per axis), clustered so that bricks are shared
   // and also spread over distant bricks; checked against a plain set.

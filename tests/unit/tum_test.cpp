@@ -421,6 +421,34 @@ TEST(Tum, ZeroQuaternionIsError) {
   expectError([&] { readTumSequence(dir.path()); }, gt, "line 1: quaternion");
 }
 
+TEST(Tum, NanOrNonUnitQuaternionNamesFileAndLine) {
+  // A quaternion written with rounded decimals (length within 0.001 of 1) is normalised; one
+  // further from unit length, or with a NaN, is an error naming the file and the line.
+  TempDir dir;
+  const std::string gt = dir.file("groundtruth.txt");
+  writeIndex(dir, "1.0 depth/1.png\n", "1.0 0 0 0 0 0 0.7071 0.7071\n", kSmallIntrinsicsTxt);
+  const TumSequence seq = readTumSequence(dir.path());
+  ASSERT_EQ(seq.frames.size(), 1u);
+  EXPECT_NEAR(angleBetween(seq.frames[0].pose,
+                           makePose(kPi / 2, Eigen::Vector3d::UnitZ(), Eigen::Vector3d::Zero())),
+              0.0, 1e-4);
+  EXPECT_NEAR(seq.frames[0].pose.linear().determinant(), 1.0, 1e-12);
+  EXPECT_LT((seq.frames[0].pose.linear().transpose() * seq.frames[0].pose.linear() -
+             Eigen::Matrix3d::Identity())
+                .norm(),
+            1e-12);
+  writeBytes(gt, "1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 2\n");
+  expectError([&] { readTumSequence(dir.path()); }, gt,
+              "line 2: quaternion (0 0 0 2) has length 2, not 1 (within 0.001)");
+  writeBytes(gt, "1.0 0 0 0 0.5 0.5 0.5 0.51\n");
+  expectError([&] { readTumSequence(dir.path()); }, gt,
+              "line 1: quaternion (0.5 0.5 0.5 0.51) has length 1.005");
+  writeBytes(gt, "1.0 0 0 0 0 0 0 1\n# comment\n2.0 0 0 0 0 nan 0 1\n");
+  expectError([&] { readTumSequence(dir.path()); }, gt, "line 3: qy 'nan' is not a finite number");
+  writeBytes(gt, "1.0 0 0 0 0 0 0 NaN\n");
+  expectError([&] { readTumSequence(dir.path()); }, gt, "line 1: qw 'NaN' is not a finite number");
+}
+
 TEST(Tum, MissingPngIsError) {
   TempDir dir;
   writeIndex(dir, "1.0 depth/missing.png\n", "1.0 0 0 0 0 0 0 1\n", kSmallIntrinsicsTxt);

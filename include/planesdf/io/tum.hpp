@@ -45,8 +45,10 @@ bool isTumFolder(const std::string& folder);
 
 /// Reads the index files of a TUM folder and associates each depth frame with a pose
 /// (interpolated when bracketed, else nearest). Throws planesdf::Error naming the folder or file
-/// when it is not a TUM sequence, an index line is malformed, no intrinsics are available, or
-/// no depth frame has a pose.
+/// when it is not a TUM sequence, an index line is malformed (the error names the line; a
+/// ground-truth number that is not finite, or a quaternion whose length is not 1 within 0.001),
+/// no intrinsics are available, or no depth frame has a pose. Quaternions within that tolerance
+/// are normalised.
 TumSequence readTumSequence(const std::string& folder, const TumOptions& options = {});
 
 /// Loads the 16-bit PNG of frame `i` as a DepthFrame in metres. Throws planesdf::Error naming the
