@@ -675,15 +675,11 @@ bool hasCore(const Blob& blob, int cells) {
   return erode(m, cells).count() > 0;
 }
 
-/// True when the source objects `labels` (together smaller than `large_cells`) fit the target
-/// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
-/// off as in place: the object moved by a few cm (design.md, "Small moves"). Cells the target
-/// did not observe at a shift are not compared; a shift comparing fewer than 80 % of the cells
-/// is not a fit, and an object the target observed too little of in place is no move.
-bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
-                   const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
-                   int max_shift) {
-  std::vector<Eigen::Vector2i> src, tgt;
+/// The cells of the source objects `labels` (`src`) and the target cells their centres map to
+/// under T (`tgt`, unchecked), in the same order.
+void mappedObjectCells(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
+                       const HeightMap& ht, const Pose& T, std::vector<Eigen::Vector2i>& src,
+                       std::vector<Eigen::Vector2i>& tgt) {
   for (const int label : labels) {
     const ObjectInfo& o = os.object(label);
     for (int y = o.bbox_min.y(); y <= o.bbox_max.y(); ++y)
@@ -695,6 +691,18 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
         tgt.push_back(tc);
       }
   }
+}
+
+/// True when the source objects `labels` (together smaller than `large_cells`) fit the target
+/// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
+/// off as in place: the object moved by a few cm (design.md, "Small moves"). Cells the target
+/// did not observe at a shift are not compared; a shift comparing fewer than 80 % of the cells
+/// is not a fit, and an object the target observed too little of in place is no move.
+bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
+                   const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
+                   int max_shift) {
+  std::vector<Eigen::Vector2i> src, tgt;
+  mappedObjectCells(hs, os, labels, ht, T, src, tgt);
   if (src.empty() || static_cast<int>(src.size()) >= large_cells) return false;
   constexpr float kCap = 0.05f;  // a cell's mismatch counts up to 5 cm
   const auto misfit = [&](int dx, int dy) {
@@ -733,25 +741,18 @@ std::map<int, int> objectsInFootprint(const HeightMap& hs, const ObjectMap& os,
                                       const std::vector<int>& labels, const HeightMap& ht,
                                       const ObjectMap& ot, const Pose& T, int large_cells,
                                       std::vector<std::size_t>* covered) {
+  std::vector<Eigen::Vector2i> src, tgt;
+  mappedObjectCells(hs, os, labels, ht, T, src, tgt);
+  if (src.empty() || static_cast<int>(src.size()) >= large_cells) return {};
   std::map<int, int> landed;
   std::vector<std::size_t> cells;
-  int footprint = 0;
-  for (const int label : labels) {
-    const ObjectInfo& o = os.object(label);
-    for (int y = o.bbox_min.y(); y <= o.bbox_max.y(); ++y)
-      for (int x = o.bbox_min.x(); x <= o.bbox_max.x(); ++x) {
-        if (os.at(x, y) != label) continue;
-        ++footprint;
-        Eigen::Vector2i tc;
-        targetHeight(ht, T, hs.cellCenter(x, y), std::max(0.0f, hs.at(x, y)), &tc);
-        if (!ht.inBounds(tc.x(), tc.y())) continue;
-        const int t = ot.at(tc.x(), tc.y());
-        if (t == 0) continue;
-        ++landed[t];
-        cells.push_back(ht.index(tc.x(), tc.y()));
-      }
+  for (const Eigen::Vector2i& tc : tgt) {
+    if (!ht.inBounds(tc.x(), tc.y())) continue;
+    const int t = ot.at(tc.x(), tc.y());
+    if (t == 0) continue;
+    ++landed[t];
+    cells.push_back(ht.index(tc.x(), tc.y()));
   }
-  if (footprint == 0 || footprint >= large_cells) return {};
   for (auto it = landed.begin(); it != landed.end();)
     it = 2 * it->second >= ot.object(it->first).area ? std::next(it) : landed.erase(it);
   if (covered != nullptr)
@@ -991,6 +992,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       target_labels =
           objectsInFootprint(hs, os, blob.object_labels, ht, ot, T, large_cells, &covered);
       landed_cells.insert(landed_cells.end(), covered.begin(), covered.end());
+      // Each of those objects stands at least half inside the object this sliver is part of:
+      // the replacement is on the object's footprint, whatever of it the sliver's own cells hit.
       if (!target_labels.empty()) cand.target_object_overlap = 1.0;
     }
 
