@@ -31,6 +31,8 @@ const std::vector<Param>& params() {
       {"plane_merge_angle_deg", &Config::plane_merge_angle_deg},
       {"plane_merge_offset", &Config::plane_merge_offset},
       {"normal_knn", &Config::normal_knn},
+      {"normal_knn_max", &Config::normal_knn_max},
+      {"normal_max_curvature", &Config::normal_max_curvature},
       {"cloud_smooth_knn", &Config::cloud_smooth_knn},
       {"cloud_outlier_sigma", &Config::cloud_outlier_sigma},
       {"vmf_lambda_deg", &Config::vmf_lambda_deg},
@@ -83,6 +85,8 @@ const std::vector<Param>& params() {
       {"plane_connect_cell", &Config::plane_connect_cell},
       {"refine_max_points", &Config::refine_max_points},
       {"splat_radius_voxels", &Config::splat_radius_voxels},
+      {"splat_noise_reach", &Config::splat_noise_reach},
+      {"splat_max_noise", &Config::splat_max_noise},
       {"point_cell", &Config::point_cell},
   };
   return table;
@@ -200,6 +204,15 @@ void validateConfig(const Config& cfg, const std::string& what) {
               cfg.ransac_min_horizontal_frac > 0.0 && cfg.ransac_min_horizontal_frac <= 1.0,
           "RANSAC parameters out of range");
   require(cfg.normal_knn >= 3 && cfg.normal_knn <= 1000, "normal_knn must be in [3, 1000]");
+  require(std::isfinite(cfg.splat_noise_reach) && cfg.splat_noise_reach >= 0.0 &&
+              cfg.splat_noise_reach <= 10.0,
+          "splat_noise_reach must be in [0, 10]");
+  require(std::isfinite(cfg.splat_max_noise) && cfg.splat_max_noise >= 0.0,
+          "splat_max_noise must be >= 0");
+  require(cfg.normal_knn_max >= cfg.normal_knn && cfg.normal_knn_max <= 4000,
+          "normal_knn_max must be in [normal_knn, 4000]");
+  require(cfg.normal_max_curvature >= 0.0 && cfg.normal_max_curvature <= 1.0 / 3.0,
+          "normal_max_curvature must be in [0, 1/3]");
   require(cfg.cloud_smooth_knn == 0 || (cfg.cloud_smooth_knn >= 3 && cfg.cloud_smooth_knn <= 1000),
           "cloud_smooth_knn must be 0 or in [3, 1000]");
   require(std::isfinite(cfg.cloud_outlier_sigma) && cfg.cloud_outlier_sigma >= 0.0,

@@ -64,7 +64,13 @@ struct Config {
   int track_pixel_stride = 1;
 
   // --- plane detection, whole cloud ------------------------------------------------------------
-  int normal_knn = 20;           ///< k for PCA normals
+  int normal_knn = 20;  ///< k for PCA normals
+  /// Unorganised clouds: where the normal_knn nearest neighbours are not flat (surface variation
+  /// above normal_max_curvature: a noise layer as thick as the neighbourhood), the normal is
+  /// taken from 4 and 16 times as many neighbours, up to normal_knn_max, at the flattest scale
+  /// (design.md, "Noisy clouds (opt-in)"). normal_knn_max = normal_knn keeps one scale.
+  int normal_knn_max = 20;
+  double normal_max_curvature = 0.05;
   double vmf_lambda_deg = 10.0;  ///< DP-vMF-means cluster angle λ
   double offset_split = 0.05;    ///< split a normal cluster into planes by offset (m)
   int min_plane_support = 2000;  ///< points needed to keep a plane
@@ -117,6 +123,15 @@ struct Config {
   /// Lateral radius (in voxels) of the cylinder a point with a normal updates when an
   /// unorganised cloud is splatted (integratePointsWithNormals).
   double splat_radius_voxels = 1.0;
+  /// A splatted point also marks free space up to this many times its local noise (the RMS
+  /// distance of its normal's neighbours to their plane) beyond the truncation in front of it,
+  /// at most two truncations more: what a ray would have carved through the noise layer of a
+  /// surface (design.md, "Noisy clouds (opt-in)"). 0: the truncation only.
+  double splat_noise_reach = 0.0;
+  /// A point whose local noise (as above) exceeds this fraction of the truncation is not
+  /// splatted: its surface is placed no better than a measurement beyond surface_max_depth,
+  /// whose noise is half the truncation (design.md, "Noisy clouds (opt-in)"). 0 keeps all.
+  double splat_max_noise = 0.0;
   /// Unorganised clouds are first smoothed by projecting each point onto the plane of its this
   /// many nearest neighbours (projectToLocalPlanes); 0 keeps the points as given. Opt-in for raw
   /// accumulated frame points (docs/accuracy.md: more F1, fewer missed, more wrong clusters).

@@ -118,13 +118,17 @@ std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vecto
                                                   const Config& cfg);
 
 /// PCA normals, one per point (NaN for invalid points or too few neighbours). Unorganised clouds:
-/// the cfg.normal_knn nearest neighbours (hash-grid search). Organised clouds: an image window of
+/// the cfg.normal_knn nearest neighbours (hash-grid search), or up to cfg.normal_knn_max where
+/// those are not flat (cfg.normal_max_curvature). Organised clouds: an image window of
 /// about cfg.normal_window metres (integral images; blurred across depth edges, which shows up in
 /// the curvature). Oriented toward sensorOrigin(cloud) when there is one, else sign as computed.
 /// `curvature`, when given, receives the surface variation λ0/(λ0+λ1+λ2) per point (NaN when
-/// the normal is NaN). Parallel (OpenMP, cfg.threads; 0 = OpenMP default).
+/// the normal is NaN). `spread`, when given, receives per point of an unorganised cloud the RMS
+/// distance of the neighbours its normal came from to their plane (the local noise; empty for
+/// organised clouds). Parallel (OpenMP, cfg.threads; 0 = OpenMP default).
 std::vector<Eigen::Vector3f> estimateNormals(const PointCloud& cloud, const Config& cfg,
-                                             std::vector<float>* curvature = nullptr);
+                                             std::vector<float>* curvature = nullptr,
+                                             std::vector<float>* spread = nullptr);
 
 // --- whole-cloud detection ----------------------------------------------------------------------
 

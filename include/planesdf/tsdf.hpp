@@ -472,11 +472,15 @@ IntegrationResult integrateOrganizedCloud(TsdfVolume& vol, const PointCloud& org
 /// voxels whose centre v lies within the cylinder around p + t n, |t| <= truncation, of radius
 /// cfg.splat_radius_voxels voxels, with sdf = n . (v - p) and weight 1 (running average, capped
 /// at max_weight); voxels outside the voxel band are left alone. Points or normals that are
-/// non-finite or zero are skipped. Deterministic for any thread count.
-/// Throws planesdf::Error when the two arrays differ in length.
+/// non-finite or zero are skipped. `front_local`, when given, extends each point's cylinder in
+/// front of it (along n) to that distance where larger than the truncation, with the sdf there
+/// clamped to the truncation: the free space in front of a noisy surface (design.md, "Normals
+/// of noisy clouds"). Deterministic for any thread count.
+/// Throws planesdf::Error when the arrays differ in length.
 IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
                                              const std::vector<Eigen::Vector3f>& points_local,
                                              const std::vector<Eigen::Vector3f>& normals_local,
-                                             const Config& cfg);
+                                             const Config& cfg,
+                                             const std::vector<float>* front_local = nullptr);
 
 }  // namespace planesdf

@@ -602,7 +602,11 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   } else {
     // No pixel grid: splat each point along its PCA normal.
     splatted_ = true;
-    const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_);
+    std::vector<float> spread;
+    const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_, nullptr, &spread);
+    const auto trunc = static_cast<float>(cfg_.truncation());
+    const auto reach_sigma = static_cast<float>(cfg_.splat_noise_reach);
+    const auto max_noise = static_cast<float>(cfg_.splat_max_noise) * trunc;
     const bool has_sensor = sensorOrigin(world).has_value();
     // Without a sensor, a slab's top face just above the band tells its underside in the band
     // (orientUndersides): gathered, then dropped before fusion.
@@ -612,12 +616,16 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
       const Eigen::Matrix3f R = to_local.linear().cast<float>();
       const Eigen::Vector3f t = to_local.translation().cast<float>();
       std::vector<Eigen::Vector3f> p_local, n_local;
+      std::vector<float> front;  // free space in front of a noisy point (design.md)
       for (std::size_t i = 0; i < world.points.size(); ++i) {
         if (!world.isValid(i) || !normals[i].allFinite()) continue;
         const Eigen::Vector3f q = R * world.points[i] + t;
         if (q.z() < -cfg_.below_band || q.z() > top) continue;
+        const float noise = std::isfinite(spread[i]) ? spread[i] : 0.0f;
+        if (max_noise > 0.0f && noise > max_noise) continue;
         p_local.push_back(q);
         n_local.push_back(R * normals[i]);
+        front.push_back(trunc + std::min(reach_sigma * noise, 2.0f * trunc));
       }
       if (p_local.empty()) continue;
       if (!has_sensor) {
@@ -627,13 +635,16 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
         for (std::size_t i = 0; i < p_local.size(); ++i)
           if (p_local[i].z() <= cfg_.fuse_band) {
             p_local[kept] = p_local[i];
+            front[kept] = front[i];
             n_local[kept++] = n_local[i];
           }
         p_local.resize(kept);
         n_local.resize(kept);
+        front.resize(kept);
         if (kept == 0) continue;
       }
-      const IntegrationResult r = integratePointsWithNormals(ps.volume, p_local, n_local, cfg_);
+      const IntegrationResult r =
+          integratePointsWithNormals(ps.volume, p_local, n_local, cfg_, &front);
       addResult(stats, ps.plane.id, r);
     }
   }

@@ -19,7 +19,8 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 const Eigen::Vector3f kNaNNormal(kNaN, kNaN, kNaN);
 
 // Normal (smallest eigenvector) and surface variation of a covariance matrix.
-bool normalFromCovariance(const Eigen::Matrix3d& cov, Eigen::Vector3f& normal, float& curvature) {
+bool normalFromCovariance(const Eigen::Matrix3d& cov, Eigen::Vector3f& normal, float& curvature,
+                          float* rms = nullptr) {
   const double trace = cov.trace();
   if (!(trace > 0.0) || !std::isfinite(trace)) return false;
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
@@ -28,6 +29,7 @@ bool normalFromCovariance(const Eigen::Matrix3d& cov, Eigen::Vector3f& normal, f
   if (!n.allFinite() || n.norm() < 0.5) return false;
   normal = n.normalized().cast<float>();
   curvature = static_cast<float>(std::max(0.0, es.eigenvalues()(0)) / trace);
+  if (rms) *rms = static_cast<float>(std::sqrt(std::max(0.0, es.eigenvalues()(0))));
   return true;
 }
 
@@ -124,10 +126,11 @@ struct Candidates {
 
 using Neighbours = std::vector<std::pair<float, std::uint32_t>>;  // (squared distance, index)
 
-// Calls fn(i, neighbours) for every valid point i with its k nearest valid points (itself
-// included; fewer only when the cloud has fewer), in parallel over grid cells.
-template <typename Fn>
-void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Fn fn) {
+// Calls fn(i, neighbours) for every valid point i for which want(i) holds, with its k nearest
+// valid points (itself included; fewer only when the cloud has fewer), in parallel over cells.
+template <typename Want, typename Fn>
+void forEachKnnWhere(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Want want,
+                     Fn fn) {
   const std::vector<std::uint32_t> valid = detail::validIndices(points);
   if (valid.size() < 3) return;
   const int k =
@@ -144,10 +147,15 @@ void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads
 #pragma omp for schedule(dynamic, 32)
     for (long long c = 0; c < cells; ++c) {
       const auto cell = static_cast<std::size_t>(c);
+      bool any = false;
+      for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell) && !any; ++it)
+        any = want(*it);
+      if (!any) continue;
       cand.index.clear();
       grid.gatherAround(cell, 1, cand.index);
       cand.load(points);
       for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell); ++it) {
+        if (!want(*it)) continue;
         if (!cand.nearest(xyz + 3 * *it, k, reach2, nb)) grid.knn(*it, cell, k, 4, nb, scratch);
         if (nb.size() >= 3) fn(*it, nb);
       }
@@ -155,11 +163,38 @@ void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads
   }
 }
 
-void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int threads,
-                std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature) {
+template <typename Fn>
+void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Fn fn) {
+  forEachKnnWhere(
+      points, knn, threads, [](std::uint32_t) { return true; }, fn);
+}
+
+// PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max: a larger neighbourhood
+// is tried only where the smaller one is not flat (design.md, "Noisy clouds (opt-in)").
+// `spread` receives the neighbours' RMS distance from their plane at the chosen scale.
+void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int knn_max,
+                double max_curvature, int threads, std::vector<Eigen::Vector3f>& normals,
+                std::vector<float>& curvature, std::vector<float>& spread) {
   forEachKnn(points, knn, threads, [&](std::uint32_t i, const Neighbours& nb) {
-    normalFromCovariance(neighbourCovariance(points, nb), normals[i], curvature[i]);
+    normalFromCovariance(neighbourCovariance(points, nb), normals[i], curvature[i], &spread[i]);
   });
+  const auto rough = [&](std::uint32_t i) {
+    return !(static_cast<double>(curvature[i]) <= max_curvature);  // NaN: no normal yet
+  };
+  for (int k = 4 * knn; k / 4 < knn_max; k *= 4) {
+    forEachKnnWhere(points, std::min(k, knn_max), threads, rough,
+                    [&](std::uint32_t i, const Neighbours& nb) {
+                      Eigen::Vector3f n;
+                      float c = 0.0f, rms = 0.0f;
+                      if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms))
+                        return;
+                      if (!(c >= curvature[i])) {
+                        normals[i] = n;
+                        curvature[i] = c;
+                        spread[i] = rms;
+                      }
+                    });
+  }
 }
 
 // --- organised clouds ----------------------------------------------------------------------------
@@ -295,26 +330,31 @@ void windowNormals(const PointCloud& cloud, const Config& cfg, int threads, int 
 }  // namespace
 
 std::vector<Eigen::Vector3f> estimateNormals(const PointCloud& cloud, const Config& cfg,
-                                             std::vector<float>* curvature) {
+                                             std::vector<float>* curvature,
+                                             std::vector<float>* spread) {
   validatePlaneConfig(cfg);
   cloud.validate("point cloud");
-  return detail::estimateNormalsStrided(cloud, cfg, 1, curvature);
+  return detail::estimateNormalsStrided(cloud, cfg, 1, curvature, spread);
 }
 
 namespace detail {
 
 std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, const Config& cfg,
-                                                    int stride, std::vector<float>* curvature) {
+                                                    int stride, std::vector<float>* curvature,
+                                                    std::vector<float>* spread) {
   std::vector<Eigen::Vector3f> normals(cloud.size(), kNaNNormal);
   std::vector<float> curv(cloud.size(), kNaN);
+  std::vector<float> rms(cloud.isOrganized() ? 0 : cloud.size(), kNaN);
   const int threads = ompThreads(cfg);
   if (cloud.isOrganized()) {
     windowNormals(cloud, cfg, threads, std::max(1, stride), normals, curv);
   } else {
-    knnNormals(cloud.points, cfg.normal_knn, threads, normals, curv);
+    knnNormals(cloud.points, cfg.normal_knn, cfg.normal_knn_max, cfg.normal_max_curvature, threads,
+               normals, curv, rms);
   }
   if (const auto sensor = sensorOrigin(cloud)) orientNormals(cloud.points, *sensor, normals);
   if (curvature) *curvature = std::move(curv);
+  if (spread) *spread = std::move(rms);
   return normals;
 }
 

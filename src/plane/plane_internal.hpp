@@ -77,8 +77,11 @@ std::vector<Eigen::Vector3f> gatherPoints(const std::vector<Eigen::Vector3f>& po
                                           std::size_t max_count);
 
 /// estimateNormals without validation; organised clouds evaluate every `stride`-th pixel in
-/// each direction and copy the normal over the block (stride 1 = every pixel).
+/// each direction and copy the normal over the block (stride 1 = every pixel). `spread`, when
+/// given, receives per point of an unorganised cloud the RMS distance of the neighbours the
+/// normal came from to their plane (empty for organised clouds).
 std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, const Config& cfg,
-                                                    int stride, std::vector<float>* curvature);
+                                                    int stride, std::vector<float>* curvature,
+                                                    std::vector<float>* spread = nullptr);
 
 }  // namespace planesdf::detail

@@ -1467,19 +1467,21 @@ void validateFrame(const DepthFrame& frame) {
 
 struct Splat {
   Eigen::Vector3f p, n;
+  float front = 0.0f;        // how far in front of p (along n) voxels are updated, >= trunc
   Eigen::Vector3i vlo, vhi;  // inclusive global voxel range the splat may touch
 };
 
 /// The splat of point i, or false when the point is skipped (invalid, zero normal, out of band).
-bool makeSplat(const Eigen::Vector3f& p, const Eigen::Vector3f& n_raw, float trunc, float r_lat,
-               float voxel, const Band& band, Splat* s) {
+bool makeSplat(const Eigen::Vector3f& p, const Eigen::Vector3f& n_raw, float trunc, float front,
+               float r_lat, float voxel, const Band& band, Splat* s) {
   if (!p.allFinite() || !n_raw.allFinite()) return false;
   const float len = n_raw.norm();
   if (!(len > 1e-12f)) return false;
   if (!(p.z() >= band.pt_lo && p.z() <= band.pt_hi)) return false;
   s->p = p;
   s->n = n_raw / len;
-  const Eigen::Vector3f e = trunc * s->n.cwiseAbs() + Eigen::Vector3f::Constant(r_lat);
+  s->front = std::isfinite(front) ? std::max(front, trunc) : trunc;
+  const Eigen::Vector3f e = s->front * s->n.cwiseAbs() + Eigen::Vector3f::Constant(r_lat);
   Eigen::Vector3f lo = p - e, hi = p + e;
   lo.z() = std::max(lo.z(), band.vox_lo);
   hi.z() = std::min(hi.z(), band.vox_hi);
@@ -1508,9 +1510,9 @@ std::uint32_t applySplat(TsdfBlock& blk, const Splat& s, float trunc, float r2, 
                 voxel -
             s.p;
         const float t = s.n.dot(d);
-        if (std::fabs(t) > trunc || d.squaredNorm() - t * t > r2) continue;
+        if (t < -trunc || t > s.front || d.squaredNorm() - t * t > r2) continue;
         TsdfVoxel& v = blk.voxels[TsdfVolume::linearIndexInBlock(Eigen::Vector3i(x, y, z))];
-        *changed |= fuseVoxel(v, t, max_weight);
+        *changed |= fuseVoxel(v, std::min(t, trunc), max_weight);
         ++updates;
       }
   return updates;
@@ -1630,10 +1632,14 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrame& frame,
 IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
                                              const std::vector<Eigen::Vector3f>& points_local,
                                              const std::vector<Eigen::Vector3f>& normals_local,
-                                             const Config& cfg) {
-  if (points_local.size() != normals_local.size())
+                                             const Config& cfg,
+                                             const std::vector<float>* front_local) {
+  if (points_local.size() != normals_local.size() ||
+      (front_local && front_local->size() != points_local.size()))
     throw Error("", "splat integration: " + std::to_string(points_local.size()) + " points but " +
-                        std::to_string(normals_local.size()) + " normals");
+                        std::to_string(normals_local.size()) + " normals" +
+                        (front_local ? " and " + std::to_string(front_local->size()) + " reaches"
+                                     : std::string()));
   validateFusionConfig(cfg);
   if (!(std::isfinite(cfg.splat_radius_voxels) && cfg.splat_radius_voxels > 0.0))
     throw Error("", "fusion config: splat_radius_voxels must be > 0");
@@ -1650,7 +1656,9 @@ IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
   std::vector<std::uint64_t> keys;
   for (std::size_t i = 0; i < points_local.size(); ++i) {
     Splat s;
-    if (!makeSplat(points_local[i], normals_local[i], trunc, r_lat, voxel, band, &s)) continue;
+    const float front = front_local ? (*front_local)[i] : trunc;
+    if (!makeSplat(points_local[i], normals_local[i], trunc, front, r_lat, voxel, band, &s))
+      continue;
     const auto si = static_cast<std::uint32_t>(splats.size());
     splats.push_back(s);
     const Eigen::Vector3i blo = TsdfVolume::blockOfVoxel(s.vlo);

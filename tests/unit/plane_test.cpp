@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -218,6 +219,41 @@ TEST(PlaneNormals, KnnNormalsOfASphereMatchTheAnalyticNormal) {
     if (i == 17) continue;
     EXPECT_GT(normals[i].cast<double>().dot(centre - cloud.points[i].cast<double>()), 0.0) << i;
   }
+}
+
+TEST(PlaneNormals, ANoiseLayerAsThickAsTheNeighbourhoodTakesTheFlattestScale) {
+  // 1 m x 1 m at 30k points / m^2 with sigma = 1.5 cm (a raw accumulated wall seen from 3 m):
+  // the 20 nearest neighbours span ~1.5 cm, less than the layer, so their plane is random. At
+  // 320 (~5.8 cm) the tilt error is about sigma / (r sqrt(k) / 2) ~ 2 degrees.
+  std::mt19937 rng(11);
+  const double sigma = 0.015;
+  PointCloud cloud;
+  cloud.points = samplePlane({0, 0, 1}, 0.0, 0.5, 30000, sigma, rng);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  cloud.height = 1;
+  const auto errors = [&](const Config& cfg, std::vector<float>* spread) {
+    const std::vector<Eigen::Vector3f> n = estimateNormals(cloud, cfg, nullptr, spread);
+    std::vector<double> deg;
+    for (std::size_t i = 0; i < n.size(); ++i)
+      if (std::abs(cloud.points[i].x()) < 0.3f && std::abs(cloud.points[i].y()) < 0.3f)
+        deg.push_back(angleDeg(n[i].cast<double>().cwiseAbs(), Eigen::Vector3d::UnitZ()));
+    std::sort(deg.begin(), deg.end());
+    return deg;
+  };
+  Config cfg;
+  cfg.normal_knn_max = 16 * cfg.normal_knn;
+  std::vector<float> spread;
+  const std::vector<double> multi = errors(cfg, &spread);
+  ASSERT_GT(multi.size(), 9000u);
+  EXPECT_LT(multi[multi.size() / 2], 5.0);
+  EXPECT_LT(multi[multi.size() * 95 / 100], 12.0);
+  // The spread is the layer's noise at the chosen scale.
+  std::vector<float> s(spread.begin(), spread.end());
+  std::nth_element(s.begin(), s.begin() + s.size() / 2, s.end());
+  EXPECT_NEAR(s[s.size() / 2], sigma, 0.3 * sigma);
+  cfg.normal_knn_max = cfg.normal_knn;  // one scale
+  const std::vector<double> single = errors(cfg, nullptr);
+  EXPECT_GT(single[single.size() / 2], 20.0);
 }
 
 TEST(PlaneSmoothing, ProjectionCollapsesDepthNoiseAndDropsOutliers) {

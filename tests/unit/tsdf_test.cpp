@@ -955,6 +955,43 @@ TEST(TsdfSplat, SampledSphereWithNormals) {
   EXPECT_THROW(integratePointsWithNormals(vol, pts, {}, cfg), Error);
 }
 
+TEST(TsdfSplat, FreeSpaceInFrontOfANoisyLayerOutvotesAnOutlier) {
+  // Points of z = 0.1 with normals +z and one outlier 4.35 cm above (beyond the 2.8 cm
+  // truncation), at a voxel centre. Reaching two truncations in front, the layer's points vote
+  // "free" (clamped to the truncation) where the outlier alone put a surface.
+  const Config cfg = testConfig();
+  std::vector<Eigen::Vector3f> pts, nrm;
+  const float vs = static_cast<float>(cfg.voxel_size);
+  for (int i = -20; i <= 20; ++i)
+    for (int j = -20; j <= 20; ++j) {
+      pts.emplace_back((i + 0.5f) * vs * 0.5f, (j + 0.5f) * vs * 0.5f, 0.1f);
+      nrm.push_back(Eigen::Vector3f::UnitZ());
+    }
+  const Eigen::Vector3f outlier(0.5f * vs, 0.5f * vs, 20.5f * vs);
+  pts.push_back(outlier);
+  nrm.push_back(Eigen::Vector3f::UnitZ());
+  const float trunc = static_cast<float>(cfg.truncation());
+  ASSERT_LT(trunc, outlier.z() - 0.1f);
+  const auto sdfAtOutlier = [&](const std::vector<float>* front) {
+    TsdfVolume vol(cfg);
+    integratePointsWithNormals(vol, pts, nrm, cfg, front);
+    const Eigen::Vector3i v = (outlier / vs).array().floor().cast<int>();
+    const TsdfVoxel* x = vol.voxel(v);
+    return x ? x->sdf : std::numeric_limits<float>::quiet_NaN();
+  };
+  EXPECT_LT(std::abs(sdfAtOutlier(nullptr)), 0.5f * vs);
+  const std::vector<float> front(pts.size(), 2.0f * trunc);
+  EXPECT_GT(sdfAtOutlier(&front), 0.5f * trunc);
+  // A reach at or below the truncation is the truncation; the arrays must agree in length.
+  TsdfVolume a(cfg), b(cfg);
+  const std::vector<float> short_front(pts.size(), 0.0f);
+  integratePointsWithNormals(a, pts, nrm, cfg, &short_front);
+  integratePointsWithNormals(b, pts, nrm, cfg);
+  EXPECT_TRUE(sameVolumes(a, b));
+  const std::vector<float> wrong(3, trunc);
+  EXPECT_THROW(integratePointsWithNormals(a, pts, nrm, cfg, &wrong), Error);
+}
+
 // ---- organised clouds -----------------------------------------------------------------------
 
 TEST(TsdfCloud, OrganizedCloudIntrinsicsDepthAndIntegration) {
