@@ -48,6 +48,7 @@ const std::vector<Param>& params() {
       {"min_depth", &Config::min_depth},
       {"max_weight", &Config::max_weight},
       {"threads", &Config::threads},
+      {"memory_limit_mb", &Config::memory_limit_mb},
       {"simd", &Config::simd},
       {"w_min", &Config::w_min},
       {"h_obj", &Config::h_obj},
@@ -174,6 +175,9 @@ void validateConfig(const Config& cfg, const std::string& what) {
   require(cfg.max_weight > 0.0f && cfg.w_min >= 0.0f, "weights must be positive");
   require(cfg.threads >= 0 && cfg.threads <= kMaxThreads,
           "threads must be in [0, " + std::to_string(kMaxThreads) + "] (0: all cores)");
+  require(cfg.memory_limit_mb >= 0 && cfg.memory_limit_mb <= kMaxMemoryLimitMb,
+          "memory_limit_mb must be in [0, " + std::to_string(kMaxMemoryLimitMb) +
+              "] (0: half the physical memory)");
   require(cfg.delta_n > 0.0 && cfg.delta_n <= 1.0, "delta_n must be in (0, 1]");
   require(cfg.delta_d >= 0.0 && cfg.delta_h > 0.0 && cfg.h_obj > 0.0,
           "delta_d, delta_h and h_obj must be positive");

@@ -11,6 +11,7 @@
 #include "planesdf/error.hpp"
 #include "planesdf/io/cloud.hpp"
 #include "planesdf/io/tum.hpp"
+#include "planesdf/memory.hpp"
 #ifdef PLANESDF_HAVE_MRPT
 #include "planesdf/mrpt/range_scan.hpp"
 #endif
@@ -64,6 +65,11 @@ Map fuseTum(const std::string& folder, const Config& cfg, const std::string& int
   io::TumOptions opt;
   if (!intrinsics.empty()) opt.intrinsics = parseIntrinsics(intrinsics);
   const io::TumSequence seq = io::readTumSequence(folder, opt);
+  const Intrinsics& k = seq.intrinsics;
+  requireMemory(static_cast<std::size_t>(k.width) * k.height * kDepthFrameBytesPerPixel, cfg,
+                folder,
+                "loading and fusing " + std::to_string(k.width) + "x" + std::to_string(k.height) +
+                    " depth frames");
   Map map(cfg);
   const std::size_t n = seq.frames.size();
   auto last = std::chrono::steady_clock::now();
@@ -115,8 +121,10 @@ Map fuseRawlog(const std::string& path, const Config& cfg, const std::string& la
 
 }  // namespace
 
-Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
-                const std::string& label, bool up_defaulted) {
+namespace {
+
+Map loadSessionUnnamed(const std::string& input, const Config& cfg, const std::string& intrinsics,
+                       const std::string& label, bool up_defaulted) {
   if (fs::is_directory(input)) {
     if (!io::isTumFolder(input))
       throw Error(input, "not a TUM RGB-D sequence (no depth.txt) and not a cloud or map file");
@@ -134,6 +142,14 @@ Map loadSession(const std::string& input, const Config& cfg, const std::string& 
     return Map::fromCloud(cloud, auto_cfg);
   }
   return Map::fromCloud(cloud, cfg);
+}
+
+}  // namespace
+
+Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
+                const std::string& label, bool up_defaulted) {
+  return namingInput(
+      input, [&] { return loadSessionUnnamed(input, cfg, intrinsics, label, up_defaulted); });
 }
 
 }  // namespace planesdf::cli

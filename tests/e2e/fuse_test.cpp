@@ -69,17 +69,23 @@ TEST(FuseCli, ConfigFileSetsTheMapsConfigAndFlagsOverrideIt) {
   EXPECT_EQ(m.config().fuse_band, 0.2);
 }
 
-TEST(FuseCli, TumFolderWithProgress) {
-  test::TempDir tmp;
-  test::AnalyticScene scene;
-  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+// A 160 x 120 pinhole camera: small TUM folders for the CLI.
+Intrinsics smallCamera() {
   Intrinsics k;
   k.width = 160;
   k.height = 120;
   k.fx = k.fy = 130;
   k.cx = 79.5;
   k.cy = 59.5;
+  return k;
+}
+
+TEST(FuseCli, TumFolderWithProgress) {
+  test::TempDir tmp;
+  test::AnalyticScene scene;
+  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
+  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+  const Intrinsics k = smallCamera();
   std::vector<DepthFrame> frames;
   const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 6);
   for (std::size_t i = 0; i < poses.size(); ++i) {
@@ -94,6 +100,30 @@ TEST(FuseCli, TumFolderWithProgress) {
   ASSERT_GE(m.planes().size(), 1u);
   EXPECT_NEAR(m.planes()[0].plane.offset, 0.0, 0.005);
   EXPECT_EQ(m.frames(), 6u);
+}
+
+TEST(FuseCli, HugeIntrinsicsAreRefusedBeyondTheMemoryLimitNamingTheFolder) {
+  test::TempDir tmp;
+  test::AnalyticScene scene;
+  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
+  const Intrinsics k = smallCamera();
+  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 2);
+  std::vector<DepthFrame> frames;
+  for (const Pose& p : poses) {
+    frames.push_back(test::renderDepth(scene, k, p));
+    frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(frames.size());
+  }
+  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  test::writeBytes(tmp.file("seq/intrinsics.txt"),
+                   "fx 525\nfy 525\ncx 8191.5\ncy 8191.5\nwidth 16384\nheight 16384\n");
+  const auto r = test::runCli("fuse '" + tmp.file("seq") + "' --memory-limit-mb 4096 --out '" +
+                              tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("planesdf: error: " + tmp.file("seq") + ": loading and fusing 16384x16384"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("memory limit of 4096 MB"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists(tmp.file("m.psdf")));
 }
 
 TEST(FuseCli, BadInputsAreOneLineErrors) {

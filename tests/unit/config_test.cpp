@@ -4,6 +4,7 @@
 #include "planesdf/config.hpp"
 #include "planesdf/config_io.hpp"
 #include "planesdf/error.hpp"
+#include "planesdf/memory.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -79,6 +80,18 @@ TEST(Config, BadFilesNameFileAndKey) {
   EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
   EXPECT_NE(errorOf(R"({"threads": 100000})").find("threads must be in [0, 1024]"),
             std::string::npos);
+}
+
+TEST(Config, MemoryLimitIsInRangeAndDefaultsToHalfThePhysicalMemory) {
+  EXPECT_NE(errorOf(R"({"memory_limit_mb": -1})").find("memory_limit_mb must be in [0, 16777216]"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"memory_limit_mb": 16777217})").find("memory_limit_mb must be in"),
+            std::string::npos);
+  planesdf::Config c = planesdf::parseConfigJson(R"({"memory_limit_mb": 100})", "x");
+  EXPECT_EQ(planesdf::memoryLimitBytes(c), std::size_t{100} << 20);
+  c.memory_limit_mb = 0;
+  const std::size_t physical = planesdf::detail::physicalMemoryBytes();
+  EXPECT_EQ(planesdf::memoryLimitBytes(c), physical > 0 ? physical / 2 : std::size_t{8192} << 20);
 }
 
 TEST(Config, DeepNestingIsRefusedBeforeParsing) {

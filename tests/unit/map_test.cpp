@@ -393,6 +393,43 @@ const PlaneSdf* floorOf(const Map& m) {
   return nullptr;
 }
 
+TEST(Map, CloudFusionBeyondTheMemoryLimitIsRefusedBeforeAllocating) {
+  // A 1 mm voxel with a 10 m band: every point of the cloud is in every plane's band and the
+  // blocks would take hundreds of MB; with a 64 MB budget the map refuses them.
+  Config cfg;
+  cfg.voxel_size = 0.001;
+  cfg.fuse_band = 10.0;
+  cfg.memory_limit_mb = 64;
+  try {
+    Map::fromCloud(floorAndSlab(0.17f, 0.20f, 30, 20), cfg);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("new TSDF blocks at voxel_size 0.001"), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("memory limit"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Map, DepthFrameBeyondTheMemoryLimitIsRefusedAndLeavesTheMapUnchanged) {
+  Config cfg;
+  cfg.memory_limit_mb = 256;
+  Map m(cfg);
+  DepthFrame f;
+  f.intrinsics.width = f.intrinsics.height = 4096;  // about 1 GB of fusion buffers
+  f.intrinsics.cx = f.intrinsics.cy = 2047.5;
+  f.depth.assign(std::size_t{4096} * 4096, 1.0f);
+  try {
+    m.integrate(f, Pose::Identity());
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), "depth frame");
+    EXPECT_NE(e.message().find("4096x4096"), std::string::npos) << e.what();
+    EXPECT_NE(e.message().find("memory limit of 256 MB"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(m.frames(), 0u);
+  EXPECT_TRUE(m.planes().empty());
+}
+
 TEST(Map, TheUndersideOfASlabFacesDownWithoutAViewpoint) {
   // A cloud without a viewpoint: a floor and a low table top 3 cm thick (faces at 17 and 20 cm),
   // both faces sampled. Inside the slab the floor's SDF is negative: the underside faces down
