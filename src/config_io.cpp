@@ -9,6 +9,8 @@
 #include "json_depth.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
+#include "planesdf/plane.hpp"
+#include "planesdf/tsdf.hpp"
 
 namespace planesdf {
 namespace {
@@ -214,6 +216,13 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "roughness_tile must be in [0, 4096]");
   require(cfg.roughness_factor >= 0.0 && std::isfinite(cfg.roughness_factor),
           "roughness_factor must be finite and >= 0");
+  // The stages' own checks, here so that their messages name the config file too.
+  try {
+    validatePlaneConfig(cfg);
+    validateFusionConfig(cfg);
+  } catch (const Error& e) {
+    throw Error(what, e.message());
+  }
 }
 
 }  // namespace planesdf

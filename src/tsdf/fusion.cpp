@@ -59,17 +59,6 @@ Band makeBand(const Config& cfg, double voxel, double truncation) {
   return b;
 }
 
-void validateFusionConfig(const Config& cfg) {
-  const auto bad = [](const std::string& m) { throw Error("", "fusion config: " + m); };
-  if (!(std::isfinite(cfg.fuse_band) && cfg.fuse_band >= 0.0)) bad("fuse_band must be >= 0");
-  if (!(std::isfinite(cfg.below_band) && cfg.below_band >= 0.0)) bad("below_band must be >= 0");
-  if (!(std::isfinite(cfg.min_depth) && cfg.min_depth >= 0.0)) bad("min_depth must be >= 0");
-  if (!(std::isfinite(cfg.max_depth) && cfg.max_depth > cfg.min_depth))
-    bad("max_depth must be finite and > min_depth");
-  if (!(cfg.surface_max_depth > cfg.min_depth)) bad("surface_max_depth must be > min_depth");
-  if (!(std::isfinite(cfg.max_weight) && cfg.max_weight >= 1.0f)) bad("max_weight must be >= 1");
-}
-
 /// Running-average update with weight 1; returns true when the voxel changed.
 inline bool fuseVoxel(TsdfVoxel& v, float sdf, float max_weight) {
   const float w_new = std::min(v.weight + 1.0f, max_weight);
@@ -1524,6 +1513,17 @@ std::uint32_t applySplat(TsdfBlock& blk, const Splat& s, float trunc, float r2, 
 }
 
 }  // namespace
+
+void validateFusionConfig(const Config& cfg) {
+  const auto bad = [](const std::string& m) { throw Error("", "fusion config: " + m); };
+  if (!(std::isfinite(cfg.fuse_band) && cfg.fuse_band >= 0.0)) bad("fuse_band must be >= 0");
+  if (!(std::isfinite(cfg.below_band) && cfg.below_band >= 0.0)) bad("below_band must be >= 0");
+  if (!(std::isfinite(cfg.min_depth) && cfg.min_depth >= 0.0)) bad("min_depth must be >= 0");
+  if (!(std::isfinite(cfg.max_depth) && cfg.max_depth > cfg.min_depth))
+    bad("max_depth must be finite and > min_depth");
+  if (!(cfg.surface_max_depth > cfg.min_depth)) bad("surface_max_depth must be > min_depth");
+  if (!(std::isfinite(cfg.max_weight) && cfg.max_weight >= 1.0f)) bad("max_weight must be >= 1");
+}
 
 struct DepthFrameAnalysis::Impl {
   FrameMeasurements fm;

@@ -80,6 +80,13 @@ TEST(Config, BadFilesNameFileAndKey) {
   EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
   EXPECT_NE(errorOf(R"({"threads": 100000})").find("threads must be in [0, 1024]"),
             std::string::npos);
+  // Ranges the pipeline stages check name the file as well.
+  EXPECT_NE(
+      errorOf(R"({"plane_merge_offset": -1})").find("cfg.json: plane_merge_offset must be >= 0"),
+      std::string::npos);
+  EXPECT_NE(
+      errorOf(R"({"max_weight": 0.5})").find("cfg.json: fusion config: max_weight must be >= 1"),
+      std::string::npos);
 }
 
 TEST(Config, MemoryLimitIsInRangeAndDefaultsToHalfThePhysicalMemory) {
