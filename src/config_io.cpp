@@ -120,13 +120,7 @@ void setParam(Config& cfg, const Param& p, const nlohmann::json& v, const std::s
 }  // namespace
 
 Config parseConfigJson(const std::string& text, const std::string& name, const Config& base) {
-  detail::checkJsonDepth(text, name);
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw Error(name, std::string("invalid JSON: ") + e.what());
-  }
+  const nlohmann::json j = detail::parseJson(text, name);
   if (!j.is_object()) throw Error(name, "expected a JSON object of Config parameters");
   Config cfg = base;
   for (auto it = j.begin(); it != j.end(); ++it) {

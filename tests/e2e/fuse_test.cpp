@@ -4,10 +4,12 @@
 
 #include <filesystem>
 #include <fstream>
+#include <random>
 
 #include "analytic_scene.hpp"
 #include "planesdf/height_map.hpp"
 #include "planesdf/io/pcd.hpp"
+#include "planesdf/io/ply.hpp"
 #include "planesdf/io/tum.hpp"
 #include "planesdf/map.hpp"
 #include "test_support.hpp"
@@ -124,6 +126,54 @@ TEST(FuseCli, HugeIntrinsicsAreRefusedBeyondTheMemoryLimitNamingTheFolder) {
       << r.out;
   EXPECT_NE(r.out.find("memory limit of 4096 MB"), std::string::npos) << r.out;
   EXPECT_FALSE(std::filesystem::exists(tmp.file("m.psdf")));
+}
+
+TEST(FuseCli, ACloudInMillimetresGetsAHintAboutUnits) {
+  // A 2 x 2 m floor with 2 mm of noise, written in millimetres: no plane at 1.5 cm tolerance.
+  test::TempDir tmp;
+  PointCloud cloud;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> noise(-2.0f, 2.0f);
+  for (int i = -100; i <= 100; ++i)
+    for (int j = -100; j <= 100; ++j)
+      cloud.points.emplace_back(10.0f * static_cast<float>(i), 10.0f * static_cast<float>(j),
+                                noise(rng));
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  io::writePly(tmp.file("mm.ply"), cloud);
+  const auto r =
+      test::runCli("fuse '" + tmp.file("mm.ply") + "' --out '" + tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(
+      r.out.find(tmp.file("mm.ply") + ": no horizontal or vertical plane found in a cloud 2000"),
+      std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("millimetres"), std::string::npos) << r.out;
+}
+
+TEST(DetectCli, MapsOfDifferentVoxelSizesNameBothMaps) {
+  test::TempDir tmp;
+  test::AnalyticScene scene;
+  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
+  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+  const Intrinsics k = smallCamera();
+  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 4);
+  std::vector<DepthFrame> frames;
+  for (const Pose& p : poses) {
+    frames.push_back(test::renderDepth(scene, k, p));
+    frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(frames.size());
+  }
+  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  const std::string fine = tmp.file("fine.psdf"), coarse = tmp.file("coarse.psdf");
+  ASSERT_EQ(test::runCli("fuse '" + tmp.file("seq") + "' --out '" + fine + "'").exit_code, 0);
+  ASSERT_EQ(
+      test::runCli("fuse '" + tmp.file("seq") + "' --voxel 0.01 --out '" + coarse + "'").exit_code,
+      0);
+  const auto r =
+      test::runCli("detect '" + fine + "' '" + coarse + "' --out '" + tmp.file("out") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("planesdf: error: " + fine + " and " + coarse + ": "), std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("voxel sizes"), std::string::npos) << r.out;
 }
 
 TEST(FuseCli, BadInputsAreOneLineErrors) {

@@ -80,6 +80,10 @@ TEST(Config, BadFilesNameFileAndKey) {
   EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
   EXPECT_NE(errorOf(R"({"threads": 100000})").find("threads must be in [0, 1024]"),
             std::string::npos);
+  // A key given twice: nlohmann would keep the last one silently.
+  EXPECT_NE(errorOf(R"({"delta_h": 0.03, "delta_h": 0.05})")
+                .find("cfg.json: key 'delta_h' appears twice in one object"),
+            std::string::npos);
   // Ranges the pipeline stages check name the file as well.
   EXPECT_NE(
       errorOf(R"({"plane_merge_offset": -1})").find("cfg.json: plane_merge_offset must be >= 0"),

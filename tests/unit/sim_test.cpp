@@ -391,6 +391,7 @@ TEST(SimScene, BadSceneJsonNamesTheFileAndTheProblem) {
   };
   expectError(good.substr(0, good.size() / 2), "invalid JSON");
   expectError("[1, 2]", "expected a JSON object");
+  expectError(replaced("\"seed\": ", "\"seed\": 1, \"seed\": "), "key 'seed' appears twice");
   expectError(std::string(100000, '[') + std::string(100000, ']'), "nests deeper than 64");
   expectError(replaced("\"type\": \"", "\"type\": \"cube"), "unknown object type");
   {
