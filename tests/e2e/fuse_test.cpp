@@ -82,19 +82,28 @@ Intrinsics smallCamera() {
   return k;
 }
 
-TEST(FuseCli, TumFolderWithProgress) {
-  test::TempDir tmp;
+/// A floor, plus a 10 cm box when `box`.
+test::AnalyticScene floorScene(bool box) {
   test::AnalyticScene scene;
   scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
-  const Intrinsics k = smallCamera();
+  if (box) scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+  return scene;
+}
+
+/// `n` views of `scene` from a ring 0.8 m around the origin (smallCamera), as a TUM folder.
+void writeRingSequence(const std::string& folder, const test::AnalyticScene& scene, int n) {
+  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, n);
   std::vector<DepthFrame> frames;
-  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 6);
   for (std::size_t i = 0; i < poses.size(); ++i) {
-    frames.push_back(test::renderDepth(scene, k, poses[i]));
+    frames.push_back(test::renderDepth(scene, smallCamera(), poses[i]));
     frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(i);
   }
-  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  io::writeTumSequence(folder, frames, poses);
+}
+
+TEST(FuseCli, TumFolderWithProgress) {
+  test::TempDir tmp;
+  writeRingSequence(tmp.file("seq"), floorScene(true), 6);
   const auto r = test::runCli("fuse '" + tmp.file("seq") + "' --out '" + tmp.file("m.psdf") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   EXPECT_NE(r.out.find("frame 6/6"), std::string::npos) << r.out;
@@ -106,16 +115,7 @@ TEST(FuseCli, TumFolderWithProgress) {
 
 TEST(FuseCli, HugeIntrinsicsAreRefusedBeyondTheMemoryLimitNamingTheFolder) {
   test::TempDir tmp;
-  test::AnalyticScene scene;
-  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  const Intrinsics k = smallCamera();
-  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 2);
-  std::vector<DepthFrame> frames;
-  for (const Pose& p : poses) {
-    frames.push_back(test::renderDepth(scene, k, p));
-    frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(frames.size());
-  }
-  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  writeRingSequence(tmp.file("seq"), floorScene(false), 2);
   test::writeBytes(tmp.file("seq/intrinsics.txt"),
                    "fx 525\nfy 525\ncx 8191.5\ncy 8191.5\nwidth 16384\nheight 16384\n");
   const auto r = test::runCli("fuse '" + tmp.file("seq") + "' --memory-limit-mb 4096 --out '" +
@@ -152,17 +152,7 @@ TEST(FuseCli, ACloudInMillimetresGetsAHintAboutUnits) {
 
 TEST(DetectCli, MapsOfDifferentVoxelSizesNameBothMaps) {
   test::TempDir tmp;
-  test::AnalyticScene scene;
-  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
-  const Intrinsics k = smallCamera();
-  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 4);
-  std::vector<DepthFrame> frames;
-  for (const Pose& p : poses) {
-    frames.push_back(test::renderDepth(scene, k, p));
-    frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(frames.size());
-  }
-  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  writeRingSequence(tmp.file("seq"), floorScene(true), 4);
   const std::string fine = tmp.file("fine.psdf"), coarse = tmp.file("coarse.psdf");
   ASSERT_EQ(test::runCli("fuse '" + tmp.file("seq") + "' --out '" + fine + "'").exit_code, 0);
   ASSERT_EQ(
