@@ -188,6 +188,7 @@ fs::path swapIn(const fs::path& fresh, const fs::path& dir) {
 
 // `dir` made absolute, without a trailing separator, and through symbolic links when it exists.
 fs::path folderTarget(const std::string& dir) {
+  if (dir.empty()) throw Error(dir, "the output folder name is empty");
   fs::path p = fs::absolute(dir).lexically_normal();
   if (!p.has_filename()) p = p.parent_path();
   std::error_code ec;

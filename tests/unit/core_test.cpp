@@ -186,6 +186,7 @@ TEST(ReplaceFolder, NewFolderTrailingSlashAndFileInTheWay) {
   planesdf::io::replaceFolderAtomic(tmp.file("sub/new/"), build, any);
   EXPECT_EQ(slurp(tmp.file("sub/new/a.txt")), "new");
   EXPECT_EQ(entries(tmp.file("sub")), std::vector<std::string>{"new"});
+  EXPECT_THROW(planesdf::io::replaceFolderAtomic("", build, any), Error);  // not the cwd
   planesdf::test::writeBytes(tmp.file("file"), "x");
   try {
     planesdf::io::replaceFolderAtomic(tmp.file("file"), build, any);
