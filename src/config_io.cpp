@@ -121,7 +121,8 @@ Config parseConfigJson(const std::string& text, const std::string& name, const C
   nlohmann::json j;
   try {
     j = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {
+    // parse_error, and out_of_range for a number beyond double (e.g. 1e400).
     throw Error(name, std::string("invalid JSON: ") + e.what());
   }
   if (!j.is_object()) throw Error(name, "expected a JSON object of Config parameters");

@@ -379,7 +379,8 @@ Scene parseSceneJson(const std::string& text, const std::string& name) {
   json j;
   try {
     j = json::parse(text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {
+    // parse_error, and out_of_range for a number beyond double (e.g. 1e400).
     throw Error(name, std::string("invalid JSON: ") + e.what());
   }
   const Reader r(name);
