@@ -59,7 +59,8 @@ inline nlohmann::json parseJson(const std::string& text, const std::string& name
   nlohmann::json j;
   try {
     j = nlohmann::json::parse(text, note);
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {
+    // parse_error, and out_of_range for a number beyond double (e.g. 1e400).
     throw Error(name, std::string("invalid JSON: ") + e.what());
   }
   if (!repeated.empty()) throw Error(name, "key '" + repeated + "' appears twice in one object");

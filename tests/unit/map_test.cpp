@@ -12,6 +12,7 @@
 #include <set>
 
 #include "analytic_scene.hpp"
+#include "map/map_internal.hpp"
 #include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/height_map.hpp"
@@ -246,6 +247,25 @@ TEST(Map, CorruptTruncatedAndForeignFilesNameTheFile) {
   const std::string fifo = tmp.file("pipe.psdf");  // open() would block until a writer came
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   EXPECT_THROW(Map::load(fifo), Error);
+}
+
+TEST(Map, PointCellKeysOfFarAndNonFinitePointsAreDefined) {
+  // A loaded map's points are keyed with cellKeyOf; a point at 1.9e38 made the conversion of its
+  // cell index to an integer undefined (UBSan, found by tests/fuzz/psdf_fuzz.cpp).
+  using detail::cellKeyOf;
+  const double cell = 0.0035;
+  EXPECT_EQ(cellKeyOf({0.001f, 0.0f, 0.0f}, cell), cellKeyOf({0.002f, 0.0f, 0.0f}, cell));
+  EXPECT_NE(cellKeyOf({0.001f, 0.0f, 0.0f}, cell), cellKeyOf({0.004f, 0.0f, 0.0f}, cell));
+  EXPECT_NE(cellKeyOf({-0.001f, 0.0f, 0.0f}, cell), cellKeyOf({0.001f, 0.0f, 0.0f}, cell));
+  const float inf = std::numeric_limits<float>::infinity();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (const float x : {1e30f, -1e30f, 1.8989e38f, inf, -inf, nan}) {
+    const std::uint64_t key = cellKeyOf({x, 0.0f, x}, cell);
+    EXPECT_LT(key, std::uint64_t{1} << 63) << x;
+    EXPECT_EQ(key, cellKeyOf({x, 0.0f, x}, cell)) << x;
+  }
+  EXPECT_EQ(cellKeyOf({1e30f, 0.0f, 0.0f}, cell), cellKeyOf({inf, 0.0f, 0.0f}, cell));
+  EXPECT_EQ(cellKeyOf({-1e30f, 0.0f, 0.0f}, cell), cellKeyOf({nan, 0.0f, 0.0f}, cell));
 }
 
 TEST(Map, ReadsVersionOneMapsAndCatchesTheirCorruption) {
