@@ -3,6 +3,8 @@
 #   1. Release build with warnings as errors; all tests (unit, adapter, end-to-end on ../shared).
 #   2. Install into a prefix and build + run an out-of-tree find_package(planesdf) consumer.
 #   3. AddressSanitizer + UndefinedBehaviorSanitizer build; the unit tests.
+#   4. The libFuzzer targets (clang, ASan + UBSan), 30 s each, then their regression inputs
+#      (scripts/run-fuzz.sh).
 # Usage: bash scripts/run-tests.sh [--no-sanitizers]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -38,5 +40,7 @@ if [ "$sanitizers" = 1 ]; then
   step "sanitizer unit tests"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
     ctest --test-dir build-asan -L unit --output-on-failure -j"$jobs" --timeout 900
+  step "fuzz targets (scripts/run-fuzz.sh)"
+  bash scripts/run-fuzz.sh 30
 fi
 step "all tests passed"

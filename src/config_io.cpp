@@ -9,6 +9,8 @@
 #include "json_depth.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
+#include "planesdf/plane.hpp"
+#include "planesdf/tsdf.hpp"
 
 namespace planesdf {
 namespace {
@@ -50,6 +52,7 @@ const std::vector<Param>& params() {
       {"min_depth", &Config::min_depth},
       {"max_weight", &Config::max_weight},
       {"threads", &Config::threads},
+      {"memory_limit_mb", &Config::memory_limit_mb},
       {"simd", &Config::simd},
       {"w_min", &Config::w_min},
       {"h_obj", &Config::h_obj},
@@ -121,13 +124,7 @@ void setParam(Config& cfg, const Param& p, const nlohmann::json& v, const std::s
 }  // namespace
 
 Config parseConfigJson(const std::string& text, const std::string& name, const Config& base) {
-  detail::checkJsonDepth(text, name);
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::parse_error& e) {
-    throw Error(name, std::string("invalid JSON: ") + e.what());
-  }
+  const nlohmann::json j = detail::parseJson(text, name);
   if (!j.is_object()) throw Error(name, "expected a JSON object of Config parameters");
   Config cfg = base;
   for (auto it = j.begin(); it != j.end(); ++it) {
@@ -178,6 +175,9 @@ void validateConfig(const Config& cfg, const std::string& what) {
   require(cfg.max_weight > 0.0f && cfg.w_min >= 0.0f, "weights must be positive");
   require(cfg.threads >= 0 && cfg.threads <= kMaxThreads,
           "threads must be in [0, " + std::to_string(kMaxThreads) + "] (0: all cores)");
+  require(cfg.memory_limit_mb >= 0 && cfg.memory_limit_mb <= kMaxMemoryLimitMb,
+          "memory_limit_mb must be in [0, " + std::to_string(kMaxMemoryLimitMb) +
+              "] (0: half the physical memory)");
   require(cfg.delta_n > 0.0 && cfg.delta_n <= 1.0, "delta_n must be in (0, 1]");
   require(cfg.delta_d >= 0.0 && cfg.delta_h > 0.0 && cfg.h_obj > 0.0,
           "delta_d, delta_h and h_obj must be positive");
@@ -223,6 +223,13 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "roughness_tile must be in [0, 4096]");
   require(cfg.roughness_factor >= 0.0 && std::isfinite(cfg.roughness_factor),
           "roughness_factor must be finite and >= 0");
+  // The stages' own checks, here so that their messages name the config file too.
+  try {
+    validatePlaneConfig(cfg);
+    validateFusionConfig(cfg);
+  } catch (const Error& e) {
+    throw Error(what, e.message());
+  }
 }
 
 }  // namespace planesdf

@@ -1,8 +1,13 @@
-// Internal: a nesting limit checked before nlohmann parses a JSON text (not installed).
+// Internal: JSON parsing with a nesting limit checked first and repeated keys refused (not
+// installed).
 #pragma once
 
+#include <nlohmann/json.hpp>
+
 #include <cstddef>
+#include <set>
 #include <string>
+#include <vector>
 
 #include "planesdf/error.hpp"
 
@@ -34,6 +39,32 @@ inline void checkJsonDepth(const std::string& text, const std::string& name) {
       --depth;
     }
   }
+}
+
+/// Parses a JSON text after checkJsonDepth. Throws Error(name, ...) when it is not JSON or when
+/// an object has a key twice (nlohmann would keep the last one silently).
+inline nlohmann::json parseJson(const std::string& text, const std::string& name) {
+  checkJsonDepth(text, name);
+  using Event = nlohmann::json::parse_event_t;
+  std::vector<std::set<std::string>> keys;  // per open object, the keys seen so far
+  std::string repeated;
+  const auto note = [&](int, Event event, nlohmann::json& parsed) {
+    if (event == Event::object_start) keys.emplace_back();
+    if (event == Event::object_end) keys.pop_back();
+    if (event == Event::key && !keys.back().insert(parsed.get<std::string>()).second &&
+        repeated.empty())
+      repeated = parsed.get<std::string>();
+    return true;
+  };
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(text, note);
+  } catch (const nlohmann::json::exception& e) {
+    // parse_error, and out_of_range for a number beyond double (e.g. 1e400).
+    throw Error(name, std::string("invalid JSON: ") + e.what());
+  }
+  if (!repeated.empty()) throw Error(name, "key '" + repeated + "' appears twice in one object");
+  return j;
 }
 
 }  // namespace planesdf::detail

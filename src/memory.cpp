@@ -5,6 +5,8 @@
 #include <cstdint>
 #include <limits>
 
+#include "planesdf/error.hpp"
+
 #if defined(__linux__)
 #include <sys/mman.h>
 #include <unistd.h>
@@ -26,6 +28,22 @@ bool retainFreedMemory() noexcept {
 #else
   return false;
 #endif
+}
+
+std::size_t memoryLimitBytes(const Config& cfg) {
+  constexpr std::size_t kMb = std::size_t{1} << 20;
+  if (cfg.memory_limit_mb > 0) return static_cast<std::size_t>(cfg.memory_limit_mb) * kMb;
+  const std::size_t physical = detail::physicalMemoryBytes();
+  return physical > 0 ? physical / 2 : std::size_t{8192} * kMb;
+}
+
+void requireMemory(std::size_t bytes, const Config& cfg, const std::string& input,
+                   const std::string& what) {
+  const std::size_t limit = memoryLimitBytes(cfg);
+  if (bytes <= limit) return;
+  const auto mb = [](std::size_t b) { return std::to_string((b + (1 << 20) - 1) >> 20); };
+  throw Error(input, what + " needs about " + mb(bytes) + " MB, more than the memory limit of " +
+                         mb(limit) + " MB (memory_limit_mb, --memory-limit-mb)");
 }
 
 }  // namespace planesdf

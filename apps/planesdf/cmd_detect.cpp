@@ -29,7 +29,9 @@ int runDetect(const DetectArgs& args) {
 
   DetectOptions options;
   options.keep_stages = true;
-  const ChangeSet set = detectChanges(reference, current, cfg, options);
+  const ChangeSet set = namingInput(args.reference + " and " + args.current, [&] {
+    return detectChanges(reference, current, cfg, options);
+  });
   const auto tw = Clock::now();
   writeChangeOutputs(args.out, set);
   const double write_ms = msSince(tw);

@@ -26,7 +26,8 @@ int runFuse(const FuseArgs& args) {
   if (!args.pictures.empty()) {
     std::filesystem::create_directories(args.pictures);
     for (const PlaneSdf& ps : map.planes()) {
-      const HeightMap hm = computeHeightMap(ps.volume, map.config());
+      const HeightMap hm =
+          namingInput(args.input, [&] { return computeHeightMap(ps.volume, map.config()); });
       const std::string base = args.pictures + "/plane_" + std::to_string(ps.plane.id);
       writeHeightMapPng(base + "_height.png", hm);
       writeObjectMapPng(base + "_objects.png", computeObjectMap(hm, map.config()));

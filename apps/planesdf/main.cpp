@@ -40,6 +40,8 @@ void addPipelineOptions(CLI::App* app, PipelineArgs& o) {
   addParam(app, o, "--delta-blob", &Config::delta_blob, "Blob similarity threshold δ_blob");
   addParam(app, o, "--h-obj", &Config::h_obj, "Object height threshold (m)");
   addParam(app, o, "--threads", &Config::threads, "Threads (0 = all cores)");
+  addParam(app, o, "--memory-limit-mb", &Config::memory_limit_mb,
+           "Memory budget of the large arrays in MB (0 = half the physical memory)");
   app->add_option("--intrinsics", o.intrinsics,
                   "fx,fy,cx,cy[,width,height] for TUM folders without intrinsics.txt");
 }

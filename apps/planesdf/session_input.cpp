@@ -11,6 +11,7 @@
 #include "planesdf/error.hpp"
 #include "planesdf/io/cloud.hpp"
 #include "planesdf/io/tum.hpp"
+#include "planesdf/memory.hpp"
 #ifdef PLANESDF_HAVE_MRPT
 #include "planesdf/mrpt/range_scan.hpp"
 #endif
@@ -64,6 +65,11 @@ Map fuseTum(const std::string& folder, const Config& cfg, const std::string& int
   io::TumOptions opt;
   if (!intrinsics.empty()) opt.intrinsics = parseIntrinsics(intrinsics);
   const io::TumSequence seq = io::readTumSequence(folder, opt);
+  const Intrinsics& k = seq.intrinsics;
+  requireMemory(static_cast<std::size_t>(k.width) * k.height * kDepthFrameBytesPerPixel, cfg,
+                folder,
+                "loading and fusing " + std::to_string(k.width) + "x" + std::to_string(k.height) +
+                    " depth frames");
   Map map(cfg);
   const std::size_t n = seq.frames.size();
   auto last = std::chrono::steady_clock::now();
@@ -115,8 +121,32 @@ Map fuseRawlog(const std::string& path, const Config& cfg, const std::string& la
 
 }  // namespace
 
-Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
-                const std::string& label, bool up_defaulted) {
+namespace {
+
+/// A cloud wider than this (m) with no plane found was most likely given in millimetres.
+constexpr double kMillimetreHintExtent = 100.0;
+
+/// Largest side (m) of the bounding box of the cloud's valid points.
+double extentOf(const PointCloud& cloud) {
+  Eigen::AlignedBox3f box;
+  for (std::size_t i = 0; i < cloud.points.size(); ++i)
+    if (cloud.isValid(i)) box.extend(cloud.points[i]);
+  return box.isEmpty() ? 0.0 : static_cast<double>(box.sizes().maxCoeff());
+}
+
+/// Map::fromCloud, with a hint about units when no plane is found in a cloud hundreds of m wide.
+Map mapFromCloud(const std::string& input, const PointCloud& cloud, const Config& cfg) {
+  Map map = Map::fromCloud(cloud, cfg);
+  const double extent = map.planes().empty() ? extentOf(cloud) : 0.0;
+  if (extent > kMillimetreHintExtent)
+    throw Error(input, "no horizontal or vertical plane found in a cloud " +
+                           std::to_string(static_cast<long long>(extent)) +
+                           " m wide: if its coordinates are millimetres, scale them to metres");
+  return map;
+}
+
+Map loadSessionUnnamed(const std::string& input, const Config& cfg, const std::string& intrinsics,
+                       const std::string& label, bool up_defaulted) {
   if (fs::is_directory(input)) {
     if (!io::isTumFolder(input))
       throw Error(input, "not a TUM RGB-D sequence (no depth.txt) and not a cloud or map file");
@@ -131,9 +161,17 @@ Map loadSession(const std::string& input, const Config& cfg, const std::string& 
     auto_cfg.up_auto = true;
     std::cerr << label << ": " << input
               << " is an organised cloud in its camera frame: up axis estimated (--up auto)\n";
-    return Map::fromCloud(cloud, auto_cfg);
+    return mapFromCloud(input, cloud, auto_cfg);
   }
-  return Map::fromCloud(cloud, cfg);
+  return mapFromCloud(input, cloud, cfg);
+}
+
+}  // namespace
+
+Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
+                const std::string& label, bool up_defaulted) {
+  return namingInput(
+      input, [&] { return loadSessionUnnamed(input, cfg, intrinsics, label, up_defaulted); });
 }
 
 }  // namespace planesdf::cli

@@ -4,6 +4,7 @@
 
 #include <string>
 
+#include "planesdf/error.hpp"
 #include "planesdf/map.hpp"
 
 namespace planesdf::cli {
@@ -19,5 +20,17 @@ Intrinsics parseIntrinsics(const std::string& text);
 /// frame (identity sensor pose), the up axis is estimated (auto) and a note goes to stderr.
 Map loadSession(const std::string& input, const Config& cfg, const std::string& intrinsics,
                 const std::string& label, bool up_defaulted = false);
+
+/// Runs `f`; a planesdf::Error that names no file is rethrown naming `input`, so every CLI error
+/// line says which input it is about.
+template <class F>
+auto namingInput(const std::string& input, F&& f) {
+  try {
+    return f();
+  } catch (const Error& e) {
+    if (!e.path().empty()) throw;
+    throw Error(input, e.message());
+  }
+}
 
 }  // namespace planesdf::cli

@@ -383,8 +383,11 @@ std::array<std::uint8_t, 3> changeColor(ChangeType t);
 /// with RGB colours (changeColor) and a vertex property `int change_id`; and, when the set kept
 /// its stages, planes/<ref|cur>_<id>_to_<ref|cur>_<id>_<stage>.png per plane pair and direction
 /// (stages: source_height, target_height, source_objects, raw, unknown, filtered, cleaned,
-/// blobs, validated). Every file is written atomically. Throws planesdf::Error naming the path
-/// on failure.
+/// blobs, validated). The folder is replaced all or nothing (io::replaceFolderAtomic): the files
+/// are written into a fresh sibling `DIR.tmpXXXXXX` that is then swapped in, so a reader sees
+/// the old outputs or the new ones and no picture of an earlier pair stays. An existing `dir`
+/// that holds anything but these outputs is refused. Throws planesdf::Error naming the path on
+/// failure.
 void writeChangeOutputs(const std::string& dir, const ChangeSet& set);
 
 }  // namespace planesdf

@@ -14,6 +14,9 @@ namespace planesdf {
 /// one exhausts memory before it starts (validateConfig refuses more).
 inline constexpr int kMaxThreads = 1024;
 
+/// Largest Config::memory_limit_mb accepted (16 TB).
+inline constexpr int kMaxMemoryLimitMb = 1 << 24;
+
 struct Config {
   // --- up axis -------------------------------------------------------------------------------
   /// Gravity "up" in the world frame. Ignored when `up_auto` is true.
@@ -109,6 +112,11 @@ struct Config {
   float max_weight = 100.0f;  ///< weight cap per voxel
   /// Threads of every parallel stage; 0 = hardware concurrency; at most kMaxThreads.
   int threads = 0;
+  /// Memory budget (MB) of the large arrays: a depth frame's buffers, the TSDF blocks a frame or
+  /// cloud adds to a map, a height map and the grids derived from it are estimated before they
+  /// are allocated and refused (planesdf::Error) beyond it. 0 = half the physical memory (8192
+  /// when unknown); at most kMaxMemoryLimitMb.
+  int memory_limit_mb = 0;
   /// Fuse rows of voxels with the AVX2 kernel when the CPU has AVX2 (checked at run time); also
   /// the AVX2 builds of the kept points' band pre-test, of the height map's block
   /// classification and layer walk and of the in-plane refinement's scoring. The results are

@@ -102,7 +102,8 @@ constexpr std::size_t kMaxHeightMapCells = std::size_t{1} << 28;
 
 /// The height map of `vol` over the (u, v) extent of its allocated blocks (blockBounds), one
 /// cell per voxel column. An empty volume gives an empty map (width = height = 0). Throws
-/// planesdf::Error when that extent exceeds kMaxHeightMapCells.
+/// planesdf::Error when that extent exceeds kMaxHeightMapCells, or when its cells times
+/// kHeightMapBytesPerCell exceed the memory limit (Config::memory_limit_mb).
 ///
 /// Per column (i, j), voxels are walked from the top of the allocated band downward; a voxel is
 /// *observed* when weight >= cfg.w_min (and > 0); voxels of unallocated blocks are unobserved.

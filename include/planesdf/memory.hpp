@@ -13,7 +13,10 @@
 #include <cstddef>
 #include <mutex>
 #include <new>
+#include <string>
 #include <vector>
+
+#include "planesdf/config.hpp"
 
 namespace planesdf {
 
@@ -29,6 +32,23 @@ namespace planesdf {
 /// planesdf command line calls it. Returns false where the allocator does not take the settings
 /// (other C libraries; AddressSanitizer's allocator).
 bool retainFreedMemory() noexcept;
+
+/// Config::memory_limit_mb in bytes; 0 there gives half the physical memory (8192 MB when the
+/// physical memory is unknown).
+std::size_t memoryLimitBytes(const Config& cfg);
+
+/// Throws planesdf::Error(input, ...) saying that `what` needs `bytes`, more than the memory
+/// limit, unless `bytes` fits in memoryLimitBytes(cfg). Called before large allocations.
+void requireMemory(std::size_t bytes, const Config& cfg, const std::string& input,
+                   const std::string& what);
+
+/// Bytes of the buffers that loading and fusing one depth frame of `pixels` pixels allocates
+/// (decoded image, depth, back-projected points, the per-pixel fusion pass): an estimate.
+constexpr std::size_t kDepthFrameBytesPerPixel = 64;
+
+/// Bytes per cell of a height map and the grids detection derives from it (object labels,
+/// change masks, the other map's heights, pictures): an estimate.
+constexpr std::size_t kHeightMapBytesPerCell = 48;
 
 }  // namespace planesdf
 

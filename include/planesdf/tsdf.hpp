@@ -349,6 +349,9 @@ struct IntegrationResult {
   bool changed() const { return !changed_blocks.empty() || !allocated_blocks.empty(); }
 };
 
+/// Throws planesdf::Error ("fusion config: ...") when a fusion parameter is out of range.
+void validateFusionConfig(const Config& cfg);
+
 class DepthFrameAnalysis;
 IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& analysis,
                                  const Pose& T_local_camera, const Config& cfg);

@@ -1562,9 +1562,9 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
                         const DetectOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   if (reference.config().voxel_size != current.config().voxel_size)
-    throw Error("map", "the reference and current maps have different voxel sizes (" +
-                           std::to_string(reference.config().voxel_size) + " vs " +
-                           std::to_string(current.config().voxel_size) + " m)");
+    throw Error("", "the reference and current maps have different voxel sizes (" +
+                        std::to_string(reference.config().voxel_size) + " vs " +
+                        std::to_string(current.config().voxel_size) + " m)");
   ChangeSet set;
   const auto& rp = reference.planes();
   const auto& cp = current.planes();

@@ -84,10 +84,37 @@ std::string changesToJson(const std::vector<ChangeEvent>& events, int indent) {
   return arr.dump(indent);
 }
 
-void writeChangeOutputs(const std::string& dir, const ChangeSet& set) {
+namespace {
+
+const char* const kOutputFiles[] = {"changes.json", "removed_points.ply", "added_points.ply"};
+
+// True for `name`, or for the hidden temporary `.name.tmp…` a killed older writer left.
+bool isOutputName(const std::string& entry, const std::string& name) {
+  return entry == name || entry.rfind("." + name + ".tmp", 0) == 0;
+}
+
+// True when `dir` holds nothing but detect outputs, so replacing it loses nothing else.
+bool holdsOnlyChangeOutputs(const std::string& dir) {
+  namespace fs = std::filesystem;
   std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec) throw Error(dir, "cannot create the output folder: " + ec.message());
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    bool known = false;
+    for (const char* f : kOutputFiles) known |= isOutputName(name, f);
+    if (known && e.is_regular_file(ec)) continue;
+    if (name != "planes" || !e.is_directory(ec) || e.is_symlink(ec)) return false;
+    for (const auto& pic : fs::directory_iterator(e.path(), ec)) {
+      const std::string p = pic.path().filename().string();
+      const bool png = p.size() > 4 && p.compare(p.size() - 4, 4, ".png") == 0;
+      if (!pic.is_regular_file(ec) || !(png || (p[0] == '.' && p.find(".png.tmp") != p.npos)))
+        return false;
+    }
+  }
+  return !ec;
+}
+
+void writeChangeFiles(const std::string& dir, const ChangeSet& set) {
+  std::error_code ec;
   const std::string json = changesToJson(set.events) + "\n";
   io::writeFileAtomic(dir + "/changes.json", [&](std::ostream& out) { out << json; });
 
@@ -141,6 +168,13 @@ void writeChangeOutputs(const std::string& dir, const ChangeSet& set) {
     writeMaskPng(stem + "blobs.png", r.change.blob_mask, bg, "blobs (grown to objects)");
     writeMaskPng(stem + "validated.png", r.validated, bg, "kept by the 3D validation");
   });
+}
+
+}  // namespace
+
+void writeChangeOutputs(const std::string& dir, const ChangeSet& set) {
+  io::replaceFolderAtomic(
+      dir, [&](const std::string& fresh) { writeChangeFiles(fresh, set); }, holdsOnlyChangeOutputs);
 }
 
 }  // namespace planesdf

@@ -59,7 +59,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
   const auto t0 = std::chrono::steady_clock::now();
   UpdateStats stats;
   if (reference_.config().voxel_size != current.config().voxel_size)
-    throw Error("map", "the reference and current maps have different voxel sizes");
+    throw Error("", "the reference and current maps have different voxel sizes");
   const auto& cp = current.planes();
 
   // Current plane maps, recomputed when the plane's volume (or the plane set) changed.

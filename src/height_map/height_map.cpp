@@ -5,6 +5,7 @@
 
 #include "../numeric.hpp"
 #include "planesdf/error.hpp"
+#include "planesdf/memory.hpp"
 
 #include <omp.h>
 
@@ -268,6 +269,9 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
                         std::to_string(hm.height) + " cells exceeds the limit of " +
                         std::to_string(kMaxHeightMapCells) +
                         ": the volume's blocks are spread too far apart");
+  requireMemory(hm.numCells() * kHeightMapBytesPerCell, cfg, "",
+                "a height map of " + std::to_string(hm.width) + " x " + std::to_string(hm.height) +
+                    " cells (the volume's blocks span it)");
   hm.i0 = lo.x() * kTsdfBlockSide;
   hm.j0 = lo.y() * kTsdfBlockSide;
   hm.heights.assign(hm.numCells(), kUnobserved);

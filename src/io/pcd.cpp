@@ -325,7 +325,7 @@ void parseViewpoint(const RawHeader& raw, const std::string& name, Header& h) {
     if (!parseNumber(raw.viewpoint[i], v[i]) || !std::isfinite(v[i]))
       throw Error(name, "VIEWPOINT value " + quote(raw.viewpoint[i]) + " is not a finite number");
   Eigen::Quaterniond q(v[3], v[4], v[5], v[6]);
-  const double norm = q.norm();
+  const double norm = q.coeffs().stableNorm();  // no overflow for components near 1e308
   if (!(norm > 1e-12)) throw Error(name, "VIEWPOINT quaternion (qw qx qy qz) is zero");
   q.coeffs() /= norm;
   h.viewpoint = Pose::Identity();

@@ -137,6 +137,7 @@ bool isPositiveFinite(double v) {
 struct DepthEntry {
   double timestamp = 0.0;
   std::string relative_path;
+  std::size_t line = 0;
 };
 
 std::vector<DepthEntry> readDepthIndex(const std::string& path) {
@@ -149,12 +150,19 @@ std::vector<DepthEntry> readDepthIndex(const std::string& path) {
     DepthEntry e;
     e.timestamp = numberOrThrow(path, line, 0, "timestamp");
     e.relative_path = std::string(line.tokens[1]);
+    e.line = line.number;
     entries.push_back(std::move(e));
   }
   if (entries.empty()) throw Error(path, "lists no depth frames");
   std::stable_sort(entries.begin(), entries.end(), [](const DepthEntry& a, const DepthEntry& b) {
     return a.timestamp < b.timestamp;
   });
+  // One time, one frame: a repeated timestamp would fuse the same pose several times.
+  for (std::size_t i = 1; i < entries.size(); ++i)
+    if (entries[i].timestamp == entries[i - 1].timestamp)
+      throw Error(path, lineTag(entries[i].line) + "timestamp " +
+                            formatShortest(entries[i].timestamp) + " repeats line " +
+                            std::to_string(entries[i - 1].line) + "'s");
   return entries;
 }
 

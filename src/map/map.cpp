@@ -90,6 +90,16 @@ std::vector<Eigen::Vector3f> transformPoints(const std::vector<Eigen::Vector3f>&
   return out;
 }
 
+// `cfg` with memory_limit_mb lowered to what `used` bytes leave of it (at least 1 MB), so the
+// blocks one fusion call adds are checked against the whole map's budget.
+Config withMemoryLeft(const Config& cfg, std::size_t used) {
+  const std::size_t limit = memoryLimitBytes(cfg);
+  Config c = cfg;
+  c.memory_limit_mb =
+      static_cast<int>(std::max<std::size_t>(1, (limit > used ? limit - used : 0) >> 20));
+  return c;
+}
+
 void checkFrame(const DepthFrame& frame) {
   frame.intrinsics.validate("depth frame");
   const std::size_t n = static_cast<std::size_t>(frame.intrinsics.width) * frame.intrinsics.height;
@@ -483,7 +493,8 @@ IntegrateStats Map::fuseDepth(const DepthFrameAnalysis& analysis, const Pose& ca
   IntegrateStats stats;
   for (auto& ps : planes_) {
     const Pose T_local_camera = ps.plane.frame().inverse() * camera_to_world;
-    const IntegrationResult r = integrateDepth(ps.volume, analysis, T_local_camera, fuse_cfg);
+    const IntegrationResult r = integrateDepth(ps.volume, analysis, T_local_camera,
+                                               withMemoryLeft(fuse_cfg, memoryBytes()));
     addResult(stats, ps.plane.id, r);
   }
   return stats;
@@ -493,6 +504,10 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
   const auto t0 = Clock::now();
   checkFrame(frame);
   checkPose(camera_to_world, "camera pose");
+  const Intrinsics& k = frame.intrinsics;
+  requireMemory(static_cast<std::size_t>(k.width) * k.height * kDepthFrameBytesPerPixel, cfg_,
+                "depth frame",
+                "fusing a " + std::to_string(k.width) + "x" + std::to_string(k.height) + " frame");
   thread_local std::vector<Eigen::Vector3f> points_scratch;
   std::vector<Eigen::Vector3f>& pts = points_scratch;  // this thread's buffer, reused per frame
   backProject(frame, camera_to_world, threadCount(cfg_), pts);
@@ -643,8 +658,8 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
         front.resize(kept);
         if (kept == 0) continue;
       }
-      const IntegrationResult r =
-          integratePointsWithNormals(ps.volume, p_local, n_local, cfg_, &front);
+      const IntegrationResult r = integratePointsWithNormals(
+          ps.volume, p_local, n_local, withMemoryLeft(cfg_, memoryBytes()), &front);
       addResult(stats, ps.plane.id, r);
     }
   }

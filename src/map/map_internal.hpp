@@ -12,10 +12,16 @@
 namespace planesdf::detail {
 
 /// Key of the cube of side `cell` holding `p` (21 bits per axis, wraps beyond ±7 km at 3.5 mm).
+/// Defined for every coordinate: cell indices beyond ±2^40 (and NaN) are clamped before the
+/// conversion to an integer, which would otherwise be undefined (a loaded map's points are not
+/// checked to be finite or near).
 inline std::uint64_t cellKeyOf(const Eigen::Vector3f& p, double cell) {
   auto q = [&](float x) {
-    return static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(x / cell)) +
-                                      (std::int64_t{1} << 20)) &
+    constexpr double kLimit = 1099511627776.0;  // 2^40
+    double c = std::floor(x / cell);
+    if (!(c > -kLimit)) c = -kLimit;
+    if (c > kLimit) c = kLimit;
+    return static_cast<std::uint64_t>(static_cast<std::int64_t>(c) + (std::int64_t{1} << 20)) &
            0x1fffffu;
   };
   return q(p.x()) | (q(p.y()) << 21) | (q(p.z()) << 42);

@@ -375,13 +375,7 @@ std::string sceneToJson(const Scene& scene) {
 }
 
 Scene parseSceneJson(const std::string& text, const std::string& name) {
-  detail::checkJsonDepth(text, name);
-  json j;
-  try {
-    j = json::parse(text);
-  } catch (const json::parse_error& e) {
-    throw Error(name, std::string("invalid JSON: ") + e.what());
-  }
+  const json j = detail::parseJson(text, name);
   const Reader r(name);
   r.object(j, "scene",
            {"format", "version", "name", "seed", "room", "tables", "shelves", "sensor", "reference",

@@ -14,6 +14,7 @@
 
 #include "../numeric.hpp"
 #include "planesdf/error.hpp"
+#include "planesdf/memory.hpp"
 #include "planesdf/tsdf.hpp"
 
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
@@ -56,17 +57,6 @@ Band makeBand(const Config& cfg, double voxel, double truncation) {
   b.alloc_lo = static_cast<float>(k_lo * voxel + 1e-4 * voxel);
   b.alloc_hi = static_cast<float>((k_hi + 1.0) * voxel - 1e-4 * voxel);
   return b;
-}
-
-void validateFusionConfig(const Config& cfg) {
-  const auto bad = [](const std::string& m) { throw Error("", "fusion config: " + m); };
-  if (!(std::isfinite(cfg.fuse_band) && cfg.fuse_band >= 0.0)) bad("fuse_band must be >= 0");
-  if (!(std::isfinite(cfg.below_band) && cfg.below_band >= 0.0)) bad("below_band must be >= 0");
-  if (!(std::isfinite(cfg.min_depth) && cfg.min_depth >= 0.0)) bad("min_depth must be >= 0");
-  if (!(std::isfinite(cfg.max_depth) && cfg.max_depth > cfg.min_depth))
-    bad("max_depth must be finite and > min_depth");
-  if (!(cfg.surface_max_depth > cfg.min_depth)) bad("surface_max_depth must be > min_depth");
-  if (!(std::isfinite(cfg.max_weight) && cfg.max_weight >= 1.0f)) bad("max_weight must be >= 1");
 }
 
 /// Running-average update with weight 1; returns true when the voxel changed.
@@ -209,13 +199,19 @@ class NewBlockCollector {
   std::vector<std::uint64_t> keys_;
 };
 
-/// Allocates the blocks of `per_thread` key lists in key order; returns their indices.
-std::vector<Eigen::Vector3i> allocateKeys(
-    TsdfVolume& vol, const std::vector<std::vector<std::uint64_t>>& per_thread) {
+/// Allocates the blocks of `per_thread` key lists in key order; returns their indices. Throws
+/// planesdf::Error, allocating nothing, when the new blocks exceed the memory limit of `cfg`.
+std::vector<Eigen::Vector3i> allocateKeys(TsdfVolume& vol,
+                                          const std::vector<std::vector<std::uint64_t>>& per_thread,
+                                          const Config& cfg) {
   std::vector<std::uint64_t> keys;
   for (const auto& k : per_thread) keys.insert(keys.end(), k.begin(), k.end());
   std::sort(keys.begin(), keys.end());
   keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+  requireMemory(keys.size() * sizeof(TsdfBlock), cfg, "",
+                std::to_string(keys.size()) + " new TSDF blocks at voxel_size " +
+                    std::to_string(vol.voxelSize()) + " m (fuse_band " +
+                    std::to_string(cfg.fuse_band) + " m)");
   std::vector<Eigen::Vector3i> out;
   out.reserve(keys.size());
   for (const std::uint64_t k : keys) {
@@ -867,7 +863,7 @@ __attribute__((target("avx2"))) int allocateRowAvx2(const AllocRow& r, SegmentBl
 std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
                            const std::vector<float>& k_exact, const FrameMeasurements& fm,
                            const Camera& cam, const Band& band, int threads, bool simd,
-                           BlockGrid& grid, std::vector<std::uint8_t>& in_band,
+                           BlockGrid& grid, std::vector<std::uint8_t>& in_band, const Config& cfg,
                            std::vector<Eigen::Vector3i>& allocated) {
   const int W = cam.width, H = cam.height;
   const float trunc = static_cast<float>(vol.truncation());
@@ -923,7 +919,7 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
     }
     new_keys[omp_get_thread_num()] = segments.newKeys();
   }
-  allocated = allocateKeys(vol, new_keys);
+  allocated = allocateKeys(vol, new_keys, cfg);
   return count;
 }
 
@@ -1520,6 +1516,17 @@ std::uint32_t applySplat(TsdfBlock& blk, const Splat& s, float trunc, float r2, 
 
 }  // namespace
 
+void validateFusionConfig(const Config& cfg) {
+  const auto bad = [](const std::string& m) { throw Error("", "fusion config: " + m); };
+  if (!(std::isfinite(cfg.fuse_band) && cfg.fuse_band >= 0.0)) bad("fuse_band must be >= 0");
+  if (!(std::isfinite(cfg.below_band) && cfg.below_band >= 0.0)) bad("below_band must be >= 0");
+  if (!(std::isfinite(cfg.min_depth) && cfg.min_depth >= 0.0)) bad("min_depth must be >= 0");
+  if (!(std::isfinite(cfg.max_depth) && cfg.max_depth > cfg.min_depth))
+    bad("max_depth must be finite and > min_depth");
+  if (!(cfg.surface_max_depth > cfg.min_depth)) bad("surface_max_depth must be > min_depth");
+  if (!(std::isfinite(cfg.max_weight) && cfg.max_weight >= 1.0f)) bad("max_weight must be >= 1");
+}
+
 struct DepthFrameAnalysis::Impl {
   FrameMeasurements fm;
   std::vector<float> depth;  ///< the frame's depths (exact, for allocation)
@@ -1597,7 +1604,7 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
   thread_local BlockGrid grid;  // the block cells around the frustum (see allocateInBand)
   const bool simd = cfg.simd && detail::cpuHasAvx2();
   res.num_points_fused = allocateInBand(vol, a.depth, a.k, a.fm, cam, band, threads, simd, grid,
-                                        in_band, res.allocated_blocks);
+                                        in_band, cfg, res.allocated_blocks);
   const std::vector<std::uint32_t> slots = frustumCandidates(vol, cam, band, grid);
   std::vector<BlockOutcome> outcomes(slots.size());
   const FrustumCull cull(cam);
@@ -1677,7 +1684,7 @@ IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
     std::vector<std::vector<std::uint64_t>> fresh(1);
     for (const std::uint64_t k : keys)
       if (vol.blockSlot(unpackBlockKey(k)) < 0) fresh[0].push_back(k);
-    res.allocated_blocks = allocateKeys(vol, fresh);
+    res.allocated_blocks = allocateKeys(vol, fresh, cfg);
   }
 
   // Block order = slot order; per block, its splats in input order (counting sort).

@@ -4,10 +4,12 @@
 
 #include <filesystem>
 #include <fstream>
+#include <random>
 
 #include "analytic_scene.hpp"
 #include "planesdf/height_map.hpp"
 #include "planesdf/io/pcd.hpp"
+#include "planesdf/io/ply.hpp"
 #include "planesdf/io/tum.hpp"
 #include "planesdf/map.hpp"
 #include "test_support.hpp"
@@ -69,24 +71,39 @@ TEST(FuseCli, ConfigFileSetsTheMapsConfigAndFlagsOverrideIt) {
   EXPECT_EQ(m.config().fuse_band, 0.2);
 }
 
-TEST(FuseCli, TumFolderWithProgress) {
-  test::TempDir tmp;
-  test::AnalyticScene scene;
-  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
-  scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+// A 160 x 120 pinhole camera: small TUM folders for the CLI.
+Intrinsics smallCamera() {
   Intrinsics k;
   k.width = 160;
   k.height = 120;
   k.fx = k.fy = 130;
   k.cx = 79.5;
   k.cy = 59.5;
+  return k;
+}
+
+/// A floor, plus a 10 cm box when `box`.
+test::AnalyticScene floorScene(bool box) {
+  test::AnalyticScene scene;
+  scene.primitives.push_back(test::Primitive::halfSpace(Eigen::Vector3d::UnitZ(), 0.0));
+  if (box) scene.primitives.push_back(test::Primitive::box({-0.05, -0.05, 0.0}, {0.05, 0.05, 0.1}));
+  return scene;
+}
+
+/// `n` views of `scene` from a ring 0.8 m around the origin (smallCamera), as a TUM folder.
+void writeRingSequence(const std::string& folder, const test::AnalyticScene& scene, int n) {
+  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, n);
   std::vector<DepthFrame> frames;
-  const std::vector<Pose> poses = test::ringPoses({0, 0, 0}, 0.8, 0.6, 6);
   for (std::size_t i = 0; i < poses.size(); ++i) {
-    frames.push_back(test::renderDepth(scene, k, poses[i]));
+    frames.push_back(test::renderDepth(scene, smallCamera(), poses[i]));
     frames.back().timestamp = 1.0 + 0.1 * static_cast<double>(i);
   }
-  io::writeTumSequence(tmp.file("seq"), frames, poses);
+  io::writeTumSequence(folder, frames, poses);
+}
+
+TEST(FuseCli, TumFolderWithProgress) {
+  test::TempDir tmp;
+  writeRingSequence(tmp.file("seq"), floorScene(true), 6);
   const auto r = test::runCli("fuse '" + tmp.file("seq") + "' --out '" + tmp.file("m.psdf") + "'");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   EXPECT_NE(r.out.find("frame 6/6"), std::string::npos) << r.out;
@@ -94,6 +111,59 @@ TEST(FuseCli, TumFolderWithProgress) {
   ASSERT_GE(m.planes().size(), 1u);
   EXPECT_NEAR(m.planes()[0].plane.offset, 0.0, 0.005);
   EXPECT_EQ(m.frames(), 6u);
+}
+
+TEST(FuseCli, HugeIntrinsicsAreRefusedBeyondTheMemoryLimitNamingTheFolder) {
+  test::TempDir tmp;
+  writeRingSequence(tmp.file("seq"), floorScene(false), 2);
+  test::writeBytes(tmp.file("seq/intrinsics.txt"),
+                   "fx 525\nfy 525\ncx 8191.5\ncy 8191.5\nwidth 16384\nheight 16384\n");
+  const auto r = test::runCli("fuse '" + tmp.file("seq") + "' --memory-limit-mb 4096 --out '" +
+                              tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("planesdf: error: " + tmp.file("seq") + ": loading and fusing 16384x16384"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("memory limit of 4096 MB"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists(tmp.file("m.psdf")));
+}
+
+TEST(FuseCli, ACloudInMillimetresGetsAHintAboutUnits) {
+  // A 2 x 2 m floor with 2 mm of noise, written in millimetres: no plane at 1.5 cm tolerance.
+  test::TempDir tmp;
+  PointCloud cloud;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> noise(-2.0f, 2.0f);
+  for (int i = -100; i <= 100; ++i)
+    for (int j = -100; j <= 100; ++j)
+      cloud.points.emplace_back(10.0f * static_cast<float>(i), 10.0f * static_cast<float>(j),
+                                noise(rng));
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  io::writePly(tmp.file("mm.ply"), cloud);
+  const auto r =
+      test::runCli("fuse '" + tmp.file("mm.ply") + "' --out '" + tmp.file("m.psdf") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(
+      r.out.find(tmp.file("mm.ply") + ": no horizontal or vertical plane found in a cloud 2000"),
+      std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("millimetres"), std::string::npos) << r.out;
+}
+
+TEST(DetectCli, MapsOfDifferentVoxelSizesNameBothMaps) {
+  test::TempDir tmp;
+  writeRingSequence(tmp.file("seq"), floorScene(true), 4);
+  const std::string fine = tmp.file("fine.psdf"), coarse = tmp.file("coarse.psdf");
+  ASSERT_EQ(test::runCli("fuse '" + tmp.file("seq") + "' --out '" + fine + "'").exit_code, 0);
+  ASSERT_EQ(
+      test::runCli("fuse '" + tmp.file("seq") + "' --voxel 0.01 --out '" + coarse + "'").exit_code,
+      0);
+  const auto r =
+      test::runCli("detect '" + fine + "' '" + coarse + "' --out '" + tmp.file("out") + "'");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_NE(r.out.find("planesdf: error: " + fine + " and " + coarse + ": "), std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("voxel sizes"), std::string::npos) << r.out;
 }
 
 TEST(FuseCli, BadInputsAreOneLineErrors) {

@@ -190,6 +190,35 @@ TEST(DetectChanges, OutputsFollowTheDesignContract) {
   EXPECT_EQ(pngs, s.pairs.size() * 10);
 }
 
+TEST(DetectChanges, OutputsReplaceTheFolderWholeAndRefuseForeignFiles) {
+  // A second run into the same folder leaves only its own outputs: no picture of the first.
+  DetectOptions opt;
+  opt.keep_stages = true;
+  const ChangeSet staged = detectChanges(beforeMap(), afterMap(), Config{}, opt);
+  const ChangeSet plain = detectChanges(afterMap(), beforeMap(), Config{});
+  test::TempDir tmp;
+  const std::string out = tmp.file("out");
+  writeChangeOutputs(out, staged);
+  ASSERT_TRUE(std::filesystem::exists(out + "/planes"));
+  writeChangeOutputs(out, plain);
+  EXPECT_FALSE(std::filesystem::exists(out + "/planes"));
+  std::ifstream in(out + "/changes.json");
+  EXPECT_EQ(nlohmann::json::parse(in).dump(2), changesToJson(plain.events));
+  std::size_t siblings = 0;
+  for ([[maybe_unused]] const auto& e : std::filesystem::directory_iterator(tmp.path())) ++siblings;
+  EXPECT_EQ(siblings, 1u);
+  // A folder with anything else in it is not replaced.
+  test::writeBytes(out + "/notes.txt", "mine");
+  try {
+    writeChangeOutputs(out, staged);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), out);
+  }
+  EXPECT_TRUE(std::filesystem::exists(out + "/notes.txt"));
+  EXPECT_FALSE(std::filesystem::exists(out + "/planes"));
+}
+
 TEST(DetectChanges, DifferentVoxelSizesAreAnError) {
   Config c;
   c.voxel_size = 0.01;

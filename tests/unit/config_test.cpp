@@ -4,6 +4,7 @@
 #include "planesdf/config.hpp"
 #include "planesdf/config_io.hpp"
 #include "planesdf/error.hpp"
+#include "planesdf/memory.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -79,6 +80,33 @@ TEST(Config, BadFilesNameFileAndKey) {
   EXPECT_NE(errorOf(R"({"up": [0, 0, 0]})").find("up axis"), std::string::npos);
   EXPECT_NE(errorOf(R"({"threads": 100000})").find("threads must be in [0, 1024]"),
             std::string::npos);
+  // A key given twice: nlohmann would keep the last one silently.
+  EXPECT_NE(errorOf(R"({"delta_h": 0.03, "delta_h": 0.05})")
+                .find("cfg.json: key 'delta_h' appears twice in one object"),
+            std::string::npos);
+  // Ranges the pipeline stages check name the file as well.
+  EXPECT_NE(
+      errorOf(R"({"plane_merge_offset": -1})").find("cfg.json: plane_merge_offset must be >= 0"),
+      std::string::npos);
+  EXPECT_NE(
+      errorOf(R"({"max_weight": 0.5})").find("cfg.json: fusion config: max_weight must be >= 1"),
+      std::string::npos);
+  // nlohmann throws out_of_range, not parse_error, for a number beyond double (found by
+  // tests/fuzz/config_fuzz.cpp); it escaped as a foreign exception.
+  EXPECT_NE(errorOf(R"({"voxel_size": 1e400})").find("cfg.json: invalid JSON"), std::string::npos);
+  EXPECT_NE(errorOf("89296.8E888888").find("number overflow"), std::string::npos);
+}
+
+TEST(Config, MemoryLimitIsInRangeAndDefaultsToHalfThePhysicalMemory) {
+  EXPECT_NE(errorOf(R"({"memory_limit_mb": -1})").find("memory_limit_mb must be in [0, 16777216]"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"memory_limit_mb": 16777217})").find("memory_limit_mb must be in"),
+            std::string::npos);
+  planesdf::Config c = planesdf::parseConfigJson(R"({"memory_limit_mb": 100})", "x");
+  EXPECT_EQ(planesdf::memoryLimitBytes(c), std::size_t{100} << 20);
+  c.memory_limit_mb = 0;
+  const std::size_t physical = planesdf::detail::physicalMemoryBytes();
+  EXPECT_EQ(planesdf::memoryLimitBytes(c), physical > 0 ? physical / 2 : std::size_t{8192} << 20);
 }
 
 TEST(Config, DeepNestingIsRefusedBeforeParsing) {

@@ -1,12 +1,19 @@
 // Core data structs and the atomic-output helper.
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <csignal>
 
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <sstream>
+#include <vector>
 
+#include "io/atomic_file_internal.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
 #include "planesdf/io/cloud.hpp"
@@ -59,6 +66,134 @@ TEST(AtomicFile, MissingFolderNamesThePath) {
   } catch (const Error& e) {
     EXPECT_EQ(e.path(), p);
     EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos) << e.what();
+  }
+}
+
+std::vector<std::string> entries(const std::string& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) names.push_back(e.path().filename().string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+bool supportsAnonymousFiles(const std::string& dir) {
+  const int fd = ::open(dir.c_str(), O_TMPFILE | O_WRONLY, 0600);
+  if (fd >= 0) ::close(fd);
+  return fd >= 0;
+}
+
+TEST(AtomicFile, NamedFallbackWritesReplacesAndCleansUp) {
+  TempDir tmp;
+  const std::string p = tmp.file("out.txt");
+  planesdf::io::writeFileAtomic(
+      p, [](std::ostream& o) { o << "first"; }, false);
+  planesdf::io::writeFileAtomic(
+      p, [](std::ostream& o) { o << std::string(200000, 'x'); }, false);
+  EXPECT_EQ(slurp(p), std::string(200000, 'x'));
+  EXPECT_THROW(planesdf::io::writeFileAtomic(
+                   p, [](std::ostream&) { throw Error("x", "simulated failure"); }, false),
+               Error);
+  EXPECT_EQ(entries(tmp.path()), std::vector<std::string>{"out.txt"});
+}
+
+TEST(AtomicFile, KillDuringWriteLeavesOnlyTheOldFile) {
+  // The temporary file has no name until it is complete: a SIGKILL mid-write leaves nothing.
+  // (The death test forks, so the child writes into this test's folder.)
+  TempDir tmp;
+  if (!supportsAnonymousFiles(tmp.path())) GTEST_SKIP() << "no O_TMPFILE on " << tmp.path();
+  const std::string p = tmp.file("map.psdf");
+  planesdf::io::writeFileAtomic(p, [](std::ostream& o) { o << "old"; });
+  EXPECT_EXIT(planesdf::io::writeFileAtomic(p,
+                                            [](std::ostream& o) {
+                                              o << std::string(300000, 'n');
+                                              o.flush();
+                                              std::raise(SIGKILL);
+                                            }),
+              ::testing::KilledBySignal(SIGKILL), "");
+  EXPECT_EQ(entries(tmp.path()), std::vector<std::string>{"map.psdf"});
+  EXPECT_EQ(slurp(p), "old");
+}
+
+void writeFolder(const std::string& dir, const std::vector<std::string>& files,
+                 const std::string& text) {
+  for (const std::string& f : files) {
+    fs::create_directories(fs::path(dir + "/" + f).parent_path());
+    planesdf::test::writeBytes(dir + "/" + f, text);
+  }
+}
+
+TEST(ReplaceFolder, TheNewFolderReplacesTheOldOneWhole) {
+  TempDir tmp;
+  const std::string out = tmp.file("out");
+  writeFolder(out, {"a.txt", "planes/old.png"}, "old");
+  planesdf::io::replaceFolderAtomic(
+      out, [](const std::string& d) { writeFolder(d, {"a.txt"}, "new"); },
+      [](const std::string&) { return true; });
+  EXPECT_EQ(entries(out), std::vector<std::string>{"a.txt"});
+  EXPECT_EQ(slurp(out + "/a.txt"), "new");
+  EXPECT_EQ(entries(tmp.path()), std::vector<std::string>{"out"});
+  // The folder gets the permissions of any new folder (umask), not a private temporary's.
+  fs::create_directory(tmp.file("plain"));
+  EXPECT_EQ(fs::status(out).permissions(), fs::status(tmp.file("plain")).permissions());
+}
+
+TEST(ReplaceFolder, FailedOrRefusedBuildKeepsTheOldFolder) {
+  TempDir tmp;
+  const std::string out = tmp.file("out");
+  writeFolder(out, {"a.txt", "b.txt"}, "old");
+  EXPECT_THROW(planesdf::io::replaceFolderAtomic(
+                   out,
+                   [](const std::string& d) {
+                     writeFolder(d, {"a.txt"}, "new");
+                     throw Error(d, "simulated failure");
+                   },
+                   [](const std::string&) { return true; }),
+               Error);
+  EXPECT_THROW(planesdf::io::replaceFolderAtomic(
+                   out, [](const std::string&) {}, [](const std::string&) { return false; }),
+               Error);
+  EXPECT_EQ(entries(out), (std::vector<std::string>{"a.txt", "b.txt"}));
+  EXPECT_EQ(slurp(out + "/a.txt"), "old");
+  EXPECT_EQ(entries(tmp.path()), std::vector<std::string>{"out"});
+}
+
+TEST(ReplaceFolder, KillDuringBuildKeepsTheOldFolderAndTheNextRunRemovesTheLeftover) {
+  TempDir tmp;
+  const std::string out = tmp.file("out");
+  writeFolder(out, {"a.txt", "b.txt"}, "old");
+  const auto any = [](const std::string&) { return true; };
+  EXPECT_EXIT(planesdf::io::replaceFolderAtomic(
+                  out,
+                  [](const std::string& d) {
+                    writeFolder(d, {"a.txt"}, "new");
+                    std::raise(SIGKILL);
+                  },
+                  any),
+              ::testing::KilledBySignal(SIGKILL), "");
+  EXPECT_EQ(entries(out), (std::vector<std::string>{"a.txt", "b.txt"}));
+  EXPECT_EQ(slurp(out + "/a.txt"), "old");
+  ASSERT_EQ(entries(tmp.path()).size(), 2u);  // out and the killed run's out.tmpXXXXXX
+  planesdf::io::replaceFolderAtomic(
+      out, [](const std::string& d) { writeFolder(d, {"c.txt"}, "new"); }, any);
+  EXPECT_EQ(entries(tmp.path()), std::vector<std::string>{"out"});
+  EXPECT_EQ(entries(out), std::vector<std::string>{"c.txt"});
+}
+
+TEST(ReplaceFolder, NewFolderTrailingSlashAndFileInTheWay) {
+  TempDir tmp;
+  const auto any = [](const std::string&) { return true; };
+  const auto build = [](const std::string& d) { writeFolder(d, {"a.txt"}, "new"); };
+  planesdf::io::replaceFolderAtomic(tmp.file("sub/new/"), build, any);
+  EXPECT_EQ(slurp(tmp.file("sub/new/a.txt")), "new");
+  EXPECT_EQ(entries(tmp.file("sub")), std::vector<std::string>{"new"});
+  EXPECT_THROW(planesdf::io::replaceFolderAtomic("", build, any), Error);  // not the cwd
+  planesdf::test::writeBytes(tmp.file("file"), "x");
+  try {
+    planesdf::io::replaceFolderAtomic(tmp.file("file"), build, any);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), tmp.file("file"));
+    EXPECT_NE(std::string(e.what()).find("not a folder"), std::string::npos) << e.what();
   }
 }
 

@@ -151,6 +151,29 @@ TEST(HeightMap, GridCoversTheAllocatedBlocksAndMapsCoordinates) {
   EXPECT_THROW(computeHeightMap(vol, cfg), Error);
 }
 
+TEST(HeightMap, BlocksAtTheIndexLimitAreRefusedBeyondTheMemoryLimit) {
+  // Two blocks at the ends of the map format's index range: 8,388,608 x 8 cells, inside
+  // kMaxHeightMapCells but about 3 GB with the grids detection derives from them.
+  Config cfg;
+  cfg.memory_limit_mb = 256;
+  TsdfVolume vol(cfg);
+  vol.allocateBlock(Eigen::Vector3i(-(1 << 20) + 1, 0, 0));
+  vol.allocateBlock(Eigen::Vector3i(0, 0, 0));
+  try {
+    computeHeightMap(vol, cfg);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("height map of 8388608 x 8 cells"), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("memory limit of 256 MB"), std::string::npos) << e.what();
+  }
+  cfg.memory_limit_mb = 0;  // the blocks of a table top stay well inside the default budget
+  TsdfVolume near(cfg);
+  near.allocateBlock(Eigen::Vector3i(-100, -100, 0));
+  near.allocateBlock(Eigen::Vector3i(100, 100, 0));
+  EXPECT_EQ(computeHeightMap(near, cfg).numCells(), std::size_t{1608} * 1608);
+}
+
 TEST(HeightMap, BoxAndCylinderHeightsFlatZeroOutsideUnobserved) {
   const Config cfg = testConfig();
   const TsdfVolume& vol = sceneVolume();

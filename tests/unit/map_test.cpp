@@ -12,6 +12,7 @@
 #include <set>
 
 #include "analytic_scene.hpp"
+#include "map/map_internal.hpp"
 #include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/height_map.hpp"
@@ -248,6 +249,25 @@ TEST(Map, CorruptTruncatedAndForeignFilesNameTheFile) {
   EXPECT_THROW(Map::load(fifo), Error);
 }
 
+TEST(Map, PointCellKeysOfFarAndNonFinitePointsAreDefined) {
+  // A loaded map's points are keyed with cellKeyOf; a point at 1.9e38 made the conversion of its
+  // cell index to an integer undefined (UBSan, found by tests/fuzz/psdf_fuzz.cpp).
+  using detail::cellKeyOf;
+  const double cell = 0.0035;
+  EXPECT_EQ(cellKeyOf({0.001f, 0.0f, 0.0f}, cell), cellKeyOf({0.002f, 0.0f, 0.0f}, cell));
+  EXPECT_NE(cellKeyOf({0.001f, 0.0f, 0.0f}, cell), cellKeyOf({0.004f, 0.0f, 0.0f}, cell));
+  EXPECT_NE(cellKeyOf({-0.001f, 0.0f, 0.0f}, cell), cellKeyOf({0.001f, 0.0f, 0.0f}, cell));
+  const float inf = std::numeric_limits<float>::infinity();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (const float x : {1e30f, -1e30f, 1.8989e38f, inf, -inf, nan}) {
+    const std::uint64_t key = cellKeyOf({x, 0.0f, x}, cell);
+    EXPECT_LT(key, std::uint64_t{1} << 63) << x;
+    EXPECT_EQ(key, cellKeyOf({x, 0.0f, x}, cell)) << x;
+  }
+  EXPECT_EQ(cellKeyOf({1e30f, 0.0f, 0.0f}, cell), cellKeyOf({inf, 0.0f, 0.0f}, cell));
+  EXPECT_EQ(cellKeyOf({-1e30f, 0.0f, 0.0f}, cell), cellKeyOf({nan, 0.0f, 0.0f}, cell));
+}
+
 TEST(Map, ReadsVersionOneMapsAndCatchesTheirCorruption) {
   // Version 1 had the same layout with a byte-wise FNV-1a checksum; such files still load, and
   // are the same map (written back as the current version, byte for byte what the original
@@ -391,6 +411,43 @@ const PlaneSdf* floorOf(const Map& m) {
   for (const PlaneSdf& p : m.planes())
     if (std::abs(p.plane.offset) < 0.01 && p.plane.normal.z() > 0.99) return &p;
   return nullptr;
+}
+
+TEST(Map, CloudFusionBeyondTheMemoryLimitIsRefusedBeforeAllocating) {
+  // A 1 mm voxel with a 10 m band: every point of the cloud is in every plane's band and the
+  // blocks would take hundreds of MB; with a 64 MB budget the map refuses them.
+  Config cfg;
+  cfg.voxel_size = 0.001;
+  cfg.fuse_band = 10.0;
+  cfg.memory_limit_mb = 64;
+  try {
+    Map::fromCloud(floorAndSlab(0.17f, 0.20f, 30, 20), cfg);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("new TSDF blocks at voxel_size 0.001"), std::string::npos)
+        << e.what();
+    EXPECT_NE(std::string(e.what()).find("memory limit"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Map, DepthFrameBeyondTheMemoryLimitIsRefusedAndLeavesTheMapUnchanged) {
+  Config cfg;
+  cfg.memory_limit_mb = 256;
+  Map m(cfg);
+  DepthFrame f;
+  f.intrinsics.width = f.intrinsics.height = 4096;  // about 1 GB of fusion buffers
+  f.intrinsics.cx = f.intrinsics.cy = 2047.5;
+  f.depth.assign(std::size_t{4096} * 4096, 1.0f);
+  try {
+    m.integrate(f, Pose::Identity());
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), "depth frame");
+    EXPECT_NE(e.message().find("4096x4096"), std::string::npos) << e.what();
+    EXPECT_NE(e.message().find("memory limit of 256 MB"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(m.frames(), 0u);
+  EXPECT_TRUE(m.planes().empty());
 }
 
 TEST(Map, TheUndersideOfASlabFacesDownWithoutAViewpoint) {

@@ -403,6 +403,15 @@ TEST(Pcd, ViewpointQuaternionIsNormalised) {
   EXPECT_TRUE(
       c.sensor_pose.linear().isApprox(Eigen::Vector3d(-1, -1, 1).asDiagonal().toDenseMatrix()));
   EXPECT_NEAR(c.sensor_pose.linear().determinant(), 1.0, 1e-12);
+  // Huge components: the squared norm overflows, the stable norm does not. (1, 1e308, 1e308, 0)
+  // is 180 degrees about (1, 1, 0), not the identity.
+  const PointCloud huge = io::parsePcd(
+      "VERSION 0.6\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nHEIGHT 1\n"
+      "VIEWPOINT 0 0 0 1 1e308 1e308 0\nPOINTS 1\nDATA ascii\n0 0 1\n",
+      "vp.pcd");
+  const Eigen::Matrix3d expected =
+      Eigen::Quaterniond(0, std::sqrt(0.5), std::sqrt(0.5), 0).toRotationMatrix();
+  EXPECT_TRUE(huge.sensor_pose.linear().isApprox(expected, 1e-9)) << huge.sensor_pose.linear();
 }
 
 // ---- PCD round trips ---------------------------------------------------------------------------

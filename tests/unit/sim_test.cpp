@@ -391,7 +391,10 @@ TEST(SimScene, BadSceneJsonNamesTheFileAndTheProblem) {
   };
   expectError(good.substr(0, good.size() / 2), "invalid JSON");
   expectError("[1, 2]", "expected a JSON object");
+  expectError(replaced("\"seed\": ", "\"seed\": 1, \"seed\": "), "key 'seed' appears twice");
   expectError(std::string(100000, '[') + std::string(100000, ']'), "nests deeper than 64");
+  // A number beyond double: nlohmann's out_of_range escaped (found by tests/fuzz/scene_fuzz.cpp).
+  expectError(replaced("\"fx\": 525.0", "\"fx\": 0.2E7907"), "invalid JSON");
   expectError(replaced("\"type\": \"", "\"type\": \"cube"), "unknown object type");
   {
     Scene absurd = makePreset("tabletop", 3);

@@ -409,6 +409,9 @@ TEST(Tum, MalformedIndexLineNamesFileAndLine) {
   expectError([&] { readTumSequence(dir.path()); }, depth, "line 2: expected 'timestamp filename'");
   writeBytes(depth, "one depth/1.png\n");
   expectError([&] { readTumSequence(dir.path()); }, depth, "line 1: timestamp 'one'");
+  // Five frames at one time would be fused five times with the same pose.
+  writeBytes(depth, "1.0 depth/1.png\n2.0 depth/2.png\n2.0 depth/3.png\n2.0 depth/4.png\n");
+  expectError([&] { readTumSequence(dir.path()); }, depth, "line 3: timestamp 2 repeats line 2's");
 }
 
 TEST(Tum, ZeroQuaternionIsError) {
