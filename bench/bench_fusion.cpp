@@ -12,6 +12,7 @@
 #include <limits>
 #include <vector>
 
+#include "planesdf/sim.hpp"
 #include "planesdf/tsdf.hpp"
 
 namespace {
@@ -67,14 +68,7 @@ struct Tabletop {
   }
 };
 
-Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {
-  const Eigen::Vector3d z = (target - eye).normalized();
-  const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
-  Pose T = Pose::Identity();
-  T.linear() << x, z.cross(x), z;
-  T.translation() = eye;
-  return T;
-}
+using planesdf::sim::lookAt;
 
 DepthFrame render(const Tabletop& scene, const Pose& T) {
   DepthFrame f;  // default intrinsics: 640x480 Kinect

@@ -35,6 +35,7 @@ const std::vector<Param>& params() {
       {"normal_knn", &Config::normal_knn},
       {"normal_knn_max", &Config::normal_knn_max},
       {"normal_max_curvature", &Config::normal_max_curvature},
+      {"normal_rough_share", &Config::normal_rough_share},
       {"cloud_smooth_knn", &Config::cloud_smooth_knn},
       {"cloud_outlier_sigma", &Config::cloud_outlier_sigma},
       {"vmf_lambda_deg", &Config::vmf_lambda_deg},
@@ -213,6 +214,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "normal_knn_max must be in [normal_knn, 4000]");
   require(cfg.normal_max_curvature >= 0.0 && cfg.normal_max_curvature <= 1.0 / 3.0,
           "normal_max_curvature must be in [0, 1/3]");
+  require(cfg.normal_rough_share >= 0.0 && cfg.normal_rough_share <= 1.0,
+          "normal_rough_share must be in [0, 1]");
   require(cfg.cloud_smooth_knn == 0 || (cfg.cloud_smooth_knn >= 3 && cfg.cloud_smooth_knn <= 1000),
           "cloud_smooth_knn must be 0 or in [3, 1000]");
   require(std::isfinite(cfg.cloud_outlier_sigma) && cfg.cloud_outlier_sigma >= 0.0,

@@ -5,7 +5,8 @@
 
 namespace planesdf::detail {
 
-inline constexpr double kDegToRad = 3.14159265358979323846 / 180.0;
+inline constexpr double kPi = 3.14159265358979323846;
+inline constexpr double kDegToRad = kPi / 180.0;
 
 /// Slabs parallel to a plane (shelf boards, table tops) are thinner than this, m: the reach of
 /// the underside rules of the splatting (map) and of the ownership claims (change).

@@ -7,6 +7,7 @@
 #include <CLI/CLI.hpp>
 
 #include <iostream>
+#include <new>
 #include <string>
 
 #include "commands.hpp"
@@ -169,6 +170,16 @@ int main(int argc, char** argv) {
     return rc == 0 ? kExitOk : kExitUsage;
   }
 
+  // What a run that failed below the library's own checks was working on, for its error line.
+  const auto subject = [&]() -> std::string {
+    if (*info) return info_input;
+    if (*fuse) return "fusing " + fuse_args.input;
+    if (*eval) return "evaluating " + eval_args.detect_dir;
+    if (*demo) return "demo into " + demo_out;
+    if (*simulate) return "simulating " + sim_scene + " into " + sim_out;
+    if (*detect) return "detecting " + det_args.reference + " against " + det_args.current;
+    return "bench";
+  };
   try {
     if (*info) return runInfo(info_input);
     if (*fuse) return runFuse(fuse_args);
@@ -178,8 +189,15 @@ int main(int argc, char** argv) {
       return runSimulate({sim_scene, sim_seed, simulate->count("--seed") > 0, sim_out});
     if (*detect) return runDetect(det_args);
     if (*bench) return runBench(bench_args);
-  } catch (const std::exception& e) {  // planesdf::Error and anything else: one line, exit 1
+  } catch (const planesdf::Error& e) {  // names the file and the problem: one line, exit 1
     std::cerr << "planesdf: error: " << e.what() << "\n";
+    return kExitBadInput;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "planesdf: error: " << subject() << ": out of memory (lower the input's extent, "
+              << "raise --voxel or set --memory-limit-mb)\n";
+    return kExitBadInput;
+  } catch (const std::exception& e) {  // from a library underneath (OpenCV, the C++ library)
+    std::cerr << "planesdf: error: " << subject() << ": " << e.what() << "\n";
     return kExitBadInput;
   }
   return kExitUsage;

@@ -69,11 +69,13 @@ struct Config {
   // --- plane detection, whole cloud ------------------------------------------------------------
   int normal_knn = 20;  ///< k for PCA normals
   /// Unorganised clouds: where the normal_knn nearest neighbours are not flat (surface variation
-  /// above normal_max_curvature: a noise layer as thick as the neighbourhood), the normal is
-  /// taken from 4 and 16 times as many neighbours, up to normal_knn_max, at the flattest scale
-  /// (design.md, "Noisy clouds (opt-in)"). normal_knn_max = normal_knn keeps one scale.
+  /// above normal_max_curvature) and at least normal_rough_share of 4 or 16 times as many
+  /// neighbours are not flat either (a noise layer as thick as the neighbourhood, not an edge),
+  /// the normal is taken from those, up to normal_knn_max, at the flattest scale (design.md,
+  /// "Noisy clouds"). normal_knn_max = normal_knn keeps one scale.
   int normal_knn_max = 20;
   double normal_max_curvature = 0.05;
+  double normal_rough_share = 0.0;
   double vmf_lambda_deg = 10.0;  ///< DP-vMF-means cluster angle λ
   double offset_split = 0.05;    ///< split a normal cluster into planes by offset (m)
   int min_plane_support = 2000;  ///< points needed to keep a plane

@@ -19,7 +19,7 @@
 namespace planesdf {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using detail::kPi;
 
 void validateRegistrationConfig(const Config& cfg) {
   if (!(cfg.delta_n >= -1.0 && cfg.delta_n <= 1.0)) {

@@ -18,6 +18,7 @@
 #include <unordered_set>
 #include <vector>
 
+#include "../numeric.hpp"
 #include "planesdf/error.hpp"
 
 namespace planesdf {
@@ -27,7 +28,7 @@ constexpr int kHessianMargin = 2;  // the composed kernels reach 2 voxels
 constexpr int kFeatureMargin = 3;  // Hessians of the 3x3x3 neighbourhood need 7x7x7 voxels
 constexpr int kNeighbours = 27;
 constexpr double kVotes = 3.0 * kNeighbours;  // eigenpairs of a neighbourhood
-constexpr double kPi = 3.14159265358979323846;
+using detail::kPi;
 
 // The 1D factors of the composed 5x5x5 kernels G_j * G_i, as correlation weights at offsets
 // -2..2. With d = [-1, 0, 1] / 2 (central difference) and s = [1, 2, 1] / 4 (smoothing):

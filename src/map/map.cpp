@@ -658,8 +658,9 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
         front.resize(kept);
         if (kept == 0) continue;
       }
-      const IntegrationResult r = integratePointsWithNormals(
-          ps.volume, p_local, n_local, withMemoryLeft(cfg_, memoryBytes()), &front);
+      const IntegrationResult r = integratePointsWithNormals(ps.volume, p_local, n_local,
+                                                             withMemoryLeft(cfg_, memoryBytes()),
+                                                             reach_sigma > 0.0f ? &front : nullptr);
       addResult(stats, ps.plane.id, r);
     }
   }

@@ -1,6 +1,7 @@
 // DP-vMF-means normal clustering, offset modes and connectivity split.
 
 #include "clustering.hpp"
+#include "../numeric.hpp"
 #include "plane_internal.hpp"
 
 #include <Eigen/Geometry>
@@ -15,7 +16,7 @@
 namespace planesdf::detail {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using detail::kPi;
 static_assert(sizeof(Eigen::Vector3d) == 3 * sizeof(double), "Vector3d must be packed");
 
 // Index of the axis with the largest |cos| to n, and that |cos|.

@@ -169,31 +169,39 @@ void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads
       points, knn, threads, [](std::uint32_t) { return true; }, fn);
 }
 
-// PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max: a larger neighbourhood
-// is tried only where the smaller one is not flat (design.md, "Noisy clouds (opt-in)").
-// `spread` receives the neighbours' RMS distance from their plane at the chosen scale.
-void knnNormals(const std::vector<Eigen::Vector3f>& points, int knn, int knn_max,
-                double max_curvature, int threads, std::vector<Eigen::Vector3f>& normals,
-                std::vector<float>& curvature, std::vector<float>& spread) {
-  forEachKnn(points, knn, threads, [&](std::uint32_t i, const Neighbours& nb) {
+// PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max. A larger neighbourhood
+// is tried only where the smaller one is not flat, and kept only where at least `rough_share` of
+// its points are not flat at the smallest scale either: noise is a property of a region, an
+// edge or a step is a line through smooth surfaces (design.md, "Noisy clouds"). `spread`
+// receives the neighbours' RMS distance from their plane.
+void knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, int threads,
+                std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature,
+                std::vector<float>& spread) {
+  forEachKnn(points, cfg.normal_knn, threads, [&](std::uint32_t i, const Neighbours& nb) {
     normalFromCovariance(neighbourCovariance(points, nb), normals[i], curvature[i], &spread[i]);
   });
-  const auto rough = [&](std::uint32_t i) {
-    return !(static_cast<double>(curvature[i]) <= max_curvature);  // NaN: no normal yet
-  };
-  for (int k = 4 * knn; k / 4 < knn_max; k *= 4) {
-    forEachKnnWhere(points, std::min(k, knn_max), threads, rough,
-                    [&](std::uint32_t i, const Neighbours& nb) {
-                      Eigen::Vector3f n;
-                      float c = 0.0f, rms = 0.0f;
-                      if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms))
-                        return;
-                      if (!(c >= curvature[i])) {
-                        normals[i] = n;
-                        curvature[i] = c;
-                        spread[i] = rms;
-                      }
-                    });
+  if (cfg.normal_knn_max <= cfg.normal_knn) return;
+  std::vector<std::uint8_t> rough(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i)
+    rough[i] = !(static_cast<double>(curvature[i]) <= cfg.normal_max_curvature);  // NaN: rough
+  for (int k = 4 * cfg.normal_knn; k / 4 < cfg.normal_knn_max; k *= 4) {
+    forEachKnnWhere(
+        points, std::min(k, cfg.normal_knn_max), threads,
+        [&](std::uint32_t i) { return rough[i] != 0; },
+        [&](std::uint32_t i, const Neighbours& nb) {
+          std::size_t rough_nb = 0;
+          for (const auto& e : nb) rough_nb += rough[e.second];
+          if (static_cast<double>(rough_nb) <
+              cfg.normal_rough_share * static_cast<double>(nb.size()))
+            return;
+          Eigen::Vector3f n;
+          float c = 0.0f, rms = 0.0f;
+          if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms)) return;
+          if (!(c < curvature[i])) return;
+          normals[i] = n;
+          curvature[i] = c;
+          spread[i] = rms;
+        });
   }
 }
 
@@ -349,8 +357,7 @@ std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, con
   if (cloud.isOrganized()) {
     windowNormals(cloud, cfg, threads, std::max(1, stride), normals, curv);
   } else {
-    knnNormals(cloud.points, cfg.normal_knn, cfg.normal_knn_max, cfg.normal_max_curvature, threads,
-               normals, curv, rms);
+    knnNormals(cloud.points, cfg, threads, normals, curv, rms);
   }
   if (const auto sensor = sensorOrigin(cloud)) orientNormals(cloud.points, *sensor, normals);
   if (curvature) *curvature = std::move(curv);

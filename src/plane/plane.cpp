@@ -8,6 +8,7 @@
 #include <limits>
 #include <string>
 
+#include "../numeric.hpp"
 #include "plane_internal.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/plane.hpp"
@@ -19,7 +20,7 @@
 namespace planesdf {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using detail::kPi;
 double deg2rad(double deg) {
   return deg * kPi / 180.0;
 }

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <optional>
 
+#include "../numeric.hpp"
 #include "clustering.hpp"
 #include "plane_internal.hpp"
 #include "planesdf/plane.hpp"
@@ -13,7 +14,7 @@
 namespace planesdf {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using detail::kPi;
 constexpr std::size_t kClusterSample = 30000;  // normals DP-vMF-means runs on
 constexpr int kVmfIterations = 10;
 constexpr int kNormalStride = 2;         // organised clouds

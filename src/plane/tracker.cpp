@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "../numeric.hpp"
 #include "plane_internal.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/plane.hpp"
@@ -12,7 +13,7 @@
 namespace planesdf {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using detail::kPi;
 constexpr std::size_t kMatchSample = 1000;  // inliers projected to test extent overlap
 /// Cell size (m) of a plane's occupancy (Track::cells); neighbouring cells are connected, so
 /// patches up to one to two cells apart are one region.

@@ -10,12 +10,13 @@
 #include <limits>
 #include <vector>
 
+#include "../numeric.hpp"
 #include "planesdf/sim.hpp"
 
 namespace planesdf::sim::detail {
 
 inline constexpr double kInf = std::numeric_limits<double>::infinity();
-inline constexpr double kPi = 3.14159265358979323846;
+using planesdf::detail::kPi;
 
 inline double deg2rad(double deg) {
   return deg * (kPi / 180.0);

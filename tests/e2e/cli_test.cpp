@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <filesystem>
 #include <string>
 
 #include "test_support.hpp"
@@ -83,6 +85,34 @@ TEST(Cli, CloudsWithoutAValidPointAreBadInput) {
     EXPECT_NE(r.out.find(f), std::string::npos) << r.out;
   }
   EXPECT_NE(runCli("info '" + nan_ply + "'").out.find("NaN or Inf"), std::string::npos);
+}
+
+TEST(Cli, RunningOutOfMemoryIsOneLineNamingTheInput) {
+  // Two 2 m x 2 m planes at 4 mm spacing fused at 2 mm voxels need about 1.4 GB; under an
+  // 800 MB address-space limit an allocation fails below the memory budget's estimate.
+  TempDir tmp;
+  const std::string cloud = tmp.file("planes.ply");
+  std::string body;
+  int n = 0;
+  for (int i = 0; i < 500; ++i)
+    for (int j = 0; j < 500; ++j)
+      for (const std::array<float, 3>& p : {std::array<float, 3>{0.004f * i, 0.004f * j, 0.0f},
+                                            std::array<float, 3>{0.004f * i, 0.0f, 0.004f * j}}) {
+        body.append(reinterpret_cast<const char*>(p.data()), sizeof(p));
+        ++n;
+      }
+  planesdf::test::writeBytes(cloud, "ply\nformat binary_little_endian 1.0\nelement vertex " +
+                                        std::to_string(n) +
+                                        "\nproperty float x\nproperty float y\nproperty float "
+                                        "z\nend_header\n" +
+                                        body);
+  const std::string out = tmp.file("map.psdf");
+  const auto r =
+      runCli("fuse '" + cloud + "' --out '" + out + "' --voxel 0.002", "ulimit -v 800000; ");
+  EXPECT_EQ(r.exit_code, 1) << r.out;
+  EXPECT_EQ(countLines(r.out), 1) << r.out;
+  EXPECT_NE(r.out.find("fusing " + cloud + ": out of memory"), std::string::npos) << r.out;
+  EXPECT_FALSE(std::filesystem::exists(out));
 }
 
 TEST(Cli, FolderThatIsNotATumSequence) {

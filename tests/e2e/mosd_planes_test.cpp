@@ -18,7 +18,7 @@
 namespace planesdf {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using test::kPi;
 
 std::vector<std::string> sceneFiles() {
   std::vector<std::string> files;

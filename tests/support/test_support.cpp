@@ -54,9 +54,9 @@ std::string cliPath() {
   return PLANESDF_CLI_PATH;
 }
 
-CommandResult runCli(const std::string& args) {
+CommandResult runCli(const std::string& args, const std::string& shell_prefix) {
   CommandResult r;
-  const std::string cmd = "'" + cliPath() + "' " + args + " 2>&1";
+  const std::string cmd = shell_prefix + "'" + cliPath() + "' " + args + " 2>&1";
   FILE* pipe = popen(cmd.c_str(), "r");
   if (!pipe) throw std::runtime_error("popen failed for " + cmd);
   std::array<char, 4096> buf{};

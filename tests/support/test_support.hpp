@@ -6,6 +6,8 @@
 
 namespace planesdf::test {
 
+inline constexpr double kPi = 3.14159265358979323846;
+
 /// A fresh empty folder under the system temp dir, removed on destruction.
 class TempDir {
  public:
@@ -34,7 +36,8 @@ struct CommandResult {
 };
 /// Path of the built `planesdf` executable.
 std::string cliPath();
-/// Runs `planesdf <args>` through the shell and captures exit code and output.
-CommandResult runCli(const std::string& args);
+/// Runs `<shell_prefix>planesdf <args>` through the shell and captures exit code and output
+/// (a prefix such as "ulimit -v N; " sets limits for the run).
+CommandResult runCli(const std::string& args, const std::string& shell_prefix = "");
 
 }  // namespace planesdf::test

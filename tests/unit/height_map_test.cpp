@@ -17,6 +17,7 @@
 #include <random>
 #include <vector>
 
+#include "analytic_scene.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/height_map.hpp"
 #include "planesdf/tsdf.hpp"
@@ -497,17 +498,7 @@ double raycastBoxOnPlane(const Eigen::Vector3d& o, const Eigen::Vector3d& dir, c
   return best;
 }
 
-/// Camera-to-local pose at `eye` looking at `target` (OpenCV optical frame).
-Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {
-  const Eigen::Vector3d z = (target - eye).normalized();
-  const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
-  Pose T = Pose::Identity();
-  T.linear().col(0) = x;
-  T.linear().col(1) = z.cross(x);
-  T.linear().col(2) = z;
-  T.translation() = eye;
-  return T;
-}
+using test::lookAt;
 
 DepthFrame renderDepth(const Box& box, const Pose& T_local_camera) {
   DepthFrame f;

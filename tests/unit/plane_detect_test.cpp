@@ -10,13 +10,15 @@
 #include <limits>
 #include <random>
 
+#include "analytic_scene.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/plane.hpp"
+#include "test_support.hpp"
 
 namespace planesdf {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
+using test::kPi;
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 double angleDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
@@ -238,18 +240,10 @@ bool hitBox(const Box& b, const Eigen::Vector3d& o, const Eigen::Vector3d& d, do
   return t0 > 1e-9;
 }
 
-// Camera-to-world pose at `pos` looking at `target` (optical frame: x right, y down, z forward;
-// world z up), optionally rolled about the optical axis.
+// Camera-to-world pose at `pos` looking at `target` (world z up), rolled about the optical axis.
 Pose lookAt(const Eigen::Vector3d& pos, const Eigen::Vector3d& target, double roll_deg = 0) {
-  const Eigen::Vector3d z = (target - pos).normalized();
-  const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
-  const Eigen::Vector3d y = z.cross(x);
-  Pose pose = Pose::Identity();
-  pose.linear().col(0) = x;
-  pose.linear().col(1) = y;
-  pose.linear().col(2) = z;
+  Pose pose = test::lookAt(pos, target);
   pose.linear() = pose.linear() * Eigen::AngleAxisd(roll_deg * kPi / 180, Eigen::Vector3d::UnitZ());
-  pose.translation() = pos;
   return pose;
 }
 

@@ -25,7 +25,7 @@ using Eigen::Vector2d;
 using Eigen::Vector3d;
 using planesdf::test::TempDir;
 
-constexpr double kPi = 3.14159265358979323846;
+using test::kPi;
 
 /// A preset with few frames at 320x240 (same field of view), so a whole simulation takes about a
 /// second.

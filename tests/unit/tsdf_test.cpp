@@ -14,6 +14,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "analytic_scene.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/tsdf.hpp"
 
@@ -111,20 +112,7 @@ Intrinsics smallCamera() {
   return K;
 }
 
-/// Camera-to-local pose at `eye` looking at `target` (OpenCV optical frame, up = +z).
-Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target) {
-  const Eigen::Vector3d z = (target - eye).normalized();
-  Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ());
-  if (x.norm() < 1e-6) x = Eigen::Vector3d::UnitX();
-  x.normalize();
-  const Eigen::Vector3d y = z.cross(x);
-  Pose T = Pose::Identity();
-  T.linear().col(0) = x;
-  T.linear().col(1) = y;
-  T.linear().col(2) = z;
-  T.translation() = eye;
-  return T;
-}
+using test::lookAt;
 
 std::vector<Pose> ring(int n, double radius, double height, const Eigen::Vector3d& target) {
   std::vector<Pose> poses;

@@ -22,7 +22,7 @@ namespace fs = std::filesystem;
 using planesdf::test::TempDir;
 using planesdf::test::writeBytes;
 
-constexpr double kPi = 3.14159265358979323846;
+using test::kPi;
 
 // ---- a tiny PNG encoder (stored deflate blocks), so the tests need no OpenCV --------------------
 

@@ -17,6 +17,7 @@
 #include <set>
 #include <vector>
 
+#include "analytic_scene.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/tsdf.hpp"
 #include "planesdf/validation.hpp"
@@ -139,15 +140,7 @@ Intrinsics camera() {
   return K;
 }
 
-/// Camera-to-local pose at `eye` looking at `at` (OpenCV optical frame, up = +h).
-Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& at) {
-  const Eigen::Vector3d z = (at - eye).normalized();
-  const Eigen::Vector3d x = z.cross(Eigen::Vector3d::UnitZ()).normalized();
-  Pose T = Pose::Identity();
-  T.linear() << x, z.cross(x), z;
-  T.translation() = eye;
-  return T;
-}
+using test::lookAt;
 
 /// Distance along the unit ray o + t d to the first hit of a solid (+inf: none).
 using Raycast = std::function<double(const Eigen::Vector3d& o, const Eigen::Vector3d& d)>;
