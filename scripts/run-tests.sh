@@ -31,6 +31,8 @@ cmake --install build --prefix build/_install >/dev/null
 cmake -S tests/consumer -B build/_consumer -DCMAKE_PREFIX_PATH="$root/build/_install" >/dev/null
 cmake --build build/_consumer -j"$jobs" >/dev/null
 build/_consumer/consumer
+build/_install/bin/planesdf --version  # the installed CLI finds its libraries (RUNPATH)
+build/_install/bin/slam_loop >/dev/null
 
 if [ "$sanitizers" = 1 ]; then
   step "address + undefined sanitizer build"

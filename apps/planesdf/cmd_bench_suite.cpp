@@ -511,6 +511,10 @@ int runSuite(const BenchArgs& args) {
     if (std::find(std::begin(kRoomForms), std::end(kRoomForms), form) == std::end(kRoomForms))
       throw Error("--room-forms", "unknown form '" + form + "' (streams, raw, recon, mesh)");
   if (args.octomap_stride < 1) throw Error("--octomap-stride", "must be at least 1");
+  if (args.mosd_pairs > 0 && args.mosd_dir.empty())
+    throw Error("--mosd",
+                "no mOSD folder: give it with --mosd DIR or PLANESDF_MOSD_DIR, or skip "
+                "it with --mosd-pairs 0");
   std::error_code ec;
   std::filesystem::create_directories(args.suite, ec);
   if (ec) throw Error(args.suite, "cannot create the output folder: " + ec.message());

@@ -6,6 +6,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <cstdlib>
 #include <iostream>
 #include <new>
 #include <string>
@@ -123,9 +124,7 @@ int main(int argc, char** argv) {
 
   // bench
   BenchArgs bench_args;
-#ifdef PLANESDF_MOSD_DIR
-  bench_args.mosd_dir = PLANESDF_MOSD_DIR;
-#endif
+  if (const char* mosd = std::getenv("PLANESDF_MOSD_DIR")) bench_args.mosd_dir = mosd;
   auto* bench = app.add_subcommand(
       "bench",
       "End-to-end benchmark on a simulated tabletop sequence (PlaneSDF vs OctoMap), or with "
@@ -151,7 +150,9 @@ int main(int argc, char** argv) {
       ->delimiter(',');
   bench->add_option("--mosd-pairs", bench_args.mosd_pairs, "Suite: mOSD pairs (first n)")
       ->capture_default_str();
-  bench->add_option("--mosd", bench_args.mosd_dir, "Suite: the mOSD folder (holds pairs.tsv)")
+  bench
+      ->add_option("--mosd", bench_args.mosd_dir,
+                   "Suite: the mOSD folder (holds pairs.tsv; default: env PLANESDF_MOSD_DIR)")
       ->capture_default_str();
   bench
       ->add_option("--octomap-stride", bench_args.octomap_stride,
