@@ -92,6 +92,7 @@ void expectRates(const json& m, const std::string& what) {
 }
 
 TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   TempDir tmp;
   const std::string dir = tmp.file("suite");
   const auto r =

@@ -124,6 +124,7 @@ TEST(Cli, FolderThatIsNotATumSequence) {
 }
 
 TEST(Cli, InfoOnRealMosdScene) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   const auto r = runCli("info '" + planesdf::test::mosdDir() + "/scenes/learn0.pcd'");
   ASSERT_EQ(r.exit_code, 0) << r.out;
   EXPECT_NE(r.out.find("307200"), std::string::npos) << r.out;
@@ -139,6 +140,7 @@ TEST(Cli, BenchRejectsANegativeFrameCount) {
 }
 
 TEST(Cli, InfoOnASessionMapListsItsPlanes) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   TempDir tmp;
   const std::string map = tmp.file("learn0.psdf");
   const auto fused =

@@ -18,6 +18,7 @@ namespace {
 using namespace planesdf;
 
 TEST(MosdMap, ScenesFuseAndTheTableCarriesTheObjects) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   Config cfg;
   cfg.up_auto = true;
   for (const char* name : {"learn0", "test31", "test45", "test62"}) {
@@ -45,6 +46,7 @@ TEST(MosdMap, ScenesFuseAndTheTableCarriesTheObjects) {
 }
 
 TEST(FuseCli, CloudToMapAndPictures) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   test::TempDir tmp;
   const std::string out = tmp.file("t31.psdf");
   const auto r = test::runCli("fuse '" + test::mosdDir() + "/scenes/test31.pcd' --up auto --out '" +
@@ -57,6 +59,7 @@ TEST(FuseCli, CloudToMapAndPictures) {
 }
 
 TEST(FuseCli, ConfigFileSetsTheMapsConfigAndFlagsOverrideIt) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   test::TempDir tmp;
   {
     std::ofstream cfg(tmp.file("cfg.json"));

@@ -46,6 +46,7 @@ std::vector<Pair> mosdPairs() {
 }
 
 TEST(MosdDetect, AllPairsMeetTheAcceptanceFigures) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   const auto pairs = mosdPairs();
   ASSERT_EQ(pairs.size(), 21u);
   const std::string root = test::mosdDir() + "/";
@@ -80,6 +81,7 @@ TEST(MosdDetect, AllPairsMeetTheAcceptanceFigures) {
 }
 
 TEST(MosdDetect, ASceneAgainstItselfReportsNothing) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   const std::string scene = test::mosdDir() + "/scenes/test45.pcd";
   TempDir tmp;
   const auto r = runCli("detect '" + scene + "' '" + scene + "' --out '" + tmp.path() + "'");
@@ -90,6 +92,7 @@ TEST(MosdDetect, ASceneAgainstItselfReportsNothing) {
 }
 
 TEST(MosdDetect, ASceneSeenFromADisplacedFrameReportsNothing) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   // The same cloud expressed in a frame displaced by 3 cm and 2 degrees (the sensor pose moves
   // with it), as if the second session's localisation were off by that much.
   Config cfg;

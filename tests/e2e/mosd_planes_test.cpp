@@ -57,6 +57,7 @@ const Plane* dominantHorizontal(const std::vector<Plane>& planes) {
 }
 
 TEST(MosdPlanes, WholeCloudDetectionFindsTheTableWithUpAuto) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   const std::vector<std::string> files = sceneFiles();
   ASSERT_GE(files.size(), 20u);
   Config cfg;
@@ -90,6 +91,7 @@ TEST(MosdPlanes, WholeCloudDetectionFindsTheTableWithUpAuto) {
 }
 
 TEST(MosdPlanes, RansacAndTrackerAgreeWithWholeCloudDetection) {
+  PLANESDF_SKIP_WITHOUT_MOSD();
   // Scenes of one group share the camera pose: the tracker must keep one table id across them.
   const std::vector<std::string> group = {"learn43", "learn44", "test31", "test32", "test33"};
   Config cfg;

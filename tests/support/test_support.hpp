@@ -24,8 +24,18 @@ class TempDir {
 
 /// The shared data folder (env PLANESDF_SHARED_DIR, else the path configured at build time).
 std::string sharedDir();
-/// <shared>/data/mosd; the test fails (not skips) when it is missing.
+/// <shared>/data/mosd (it may be missing: tests that read it start with
+/// PLANESDF_SKIP_WITHOUT_MOSD(); .ci/run refuses to run without it).
 std::string mosdDir();
+bool haveMosd();
+
+/// Skips the current test, with a message, when the mOSD data folder is missing.
+#define PLANESDF_SKIP_WITHOUT_MOSD()                                           \
+  do {                                                                         \
+    if (!::planesdf::test::haveMosd())                                         \
+      GTEST_SKIP() << "mOSD data not found at " << ::planesdf::test::mosdDir() \
+                   << " (set PLANESDF_SHARED_DIR)";                            \
+  } while (false)
 
 /// Writes `bytes` to `path` (test fixtures; not atomic).
 void writeBytes(const std::string& path, const std::string& bytes);
