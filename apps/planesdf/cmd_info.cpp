@@ -6,6 +6,7 @@
 #include "planesdf/io/cloud.hpp"
 #include "planesdf/io/tum.hpp"
 #include "planesdf/map.hpp"
+#include "session_input.hpp"
 
 namespace planesdf::cli {
 
@@ -43,8 +44,13 @@ void printMap(const std::string& input) {
 }  // namespace
 
 int runInfo(const std::string& input) {
-  if (input.size() > 5 && input.compare(input.size() - 5, 5, ".psdf") == 0) {
+  const std::string ext = lowerExtension(input);
+  if (ext == ".psdf") {
     printMap(input);
+    return 0;
+  }
+  if (ext == ".rawlog") {
+    printRawlogInfo(input);
     return 0;
   }
   if (planesdf::io::isTumFolder(input)) {

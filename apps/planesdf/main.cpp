@@ -161,8 +161,9 @@ int main(int argc, char** argv) {
 
   // info (ours, beyond DESIGN §3): check that an input loads and show what it holds
   std::string info_input;
-  auto* info = app.add_subcommand("info", "Show what a cloud file or TUM folder holds");
-  info->add_option("INPUT", info_input, "Scene cloud or TUM folder")->required();
+  auto* info = app.add_subcommand("info", "Show what a session input or map holds");
+  info->add_option("INPUT", info_input, "Scene cloud, TUM folder, .psdf map or .rawlog")
+      ->required();
 
   try {
     app.parse(argc, argv);

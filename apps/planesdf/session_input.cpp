@@ -51,7 +51,13 @@ Intrinsics parseIntrinsics(const std::string& text) {
   return k;
 }
 
-namespace {
+#ifndef PLANESDF_HAVE_MRPT
+[[noreturn]] void throwWithoutMrpt(const std::string& path) {
+  throw Error(path,
+              ".rawlog input needs the MRPT adapter: this planesdf was built without it "
+              "(configure with -DPLANESDF_BUILD_MRPT=ON and libmrpt-dev installed)");
+}
+#endif
 
 std::string lowerExtension(const std::string& path) {
   std::string ext = fs::path(path).extension().string();
@@ -59,6 +65,29 @@ std::string lowerExtension(const std::string& path) {
                  [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
   return ext;
 }
+
+void printRawlogInfo(const std::string& path) {
+#ifdef PLANESDF_HAVE_MRPT
+  std::size_t n = 0;
+  Intrinsics k;
+  Eigen::AlignedBox3d trajectory;
+  mrpt_adapter::readRawlog(path, [&](const mrpt_adapter::RawlogScan& scan) {
+    if (n++ == 0) k = scan.frame.intrinsics;
+    trajectory.extend(scan.pose.translation());
+  });
+  std::cout << "MRPT rawlog " << path << "\n"
+            << "  3D range scans: " << n << "\n";
+  if (n == 0) return;
+  const Eigen::Vector3d size = trajectory.sizes();
+  std::cout << "  first scan:     " << k.width << "x" << k.height << ", fx=" << k.fx
+            << " fy=" << k.fy << " cx=" << k.cx << " cy=" << k.cy << "\n"
+            << "  trajectory:     " << size.x() << " x " << size.y() << " x " << size.z() << " m\n";
+#else
+  throwWithoutMrpt(path);
+#endif
+}
+
+namespace {
 
 Map fuseTum(const std::string& folder, const Config& cfg, const std::string& intrinsics,
             const std::string& label) {
@@ -113,9 +142,7 @@ Map fuseRawlog(const std::string& path, const Config& cfg, const std::string& la
 #else
   (void)cfg;
   (void)label;
-  throw Error(path,
-              ".rawlog input needs the MRPT adapter: this planesdf was built without it "
-              "(configure with -DPLANESDF_BUILD_MRPT=ON and libmrpt-dev installed)");
+  throwWithoutMrpt(path);
 #endif
 }
 

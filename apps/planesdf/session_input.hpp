@@ -9,6 +9,12 @@
 
 namespace planesdf::cli {
 
+/// The file name's extension, lower case, with its dot ("" when none).
+std::string lowerExtension(const std::string& path);
+/// Prints what a .rawlog holds: its 3D range scans, their image size, intrinsics and the extent
+/// of their trajectory. Throws planesdf::Error naming the file (also when the MRPT adapter is
+/// not built).
+void printRawlogInfo(const std::string& path);
 /// Parses "fx,fy,cx,cy[,width,height]" (throws planesdf::Error("--intrinsics", ...)).
 Intrinsics parseIntrinsics(const std::string& text);
 

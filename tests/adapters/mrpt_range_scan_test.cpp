@@ -270,6 +270,16 @@ TEST(MrptRawlog, CliDetectsChangesBetweenTwoRawlogs) {
   ASSERT_EQ(fused.exit_code, 0) << fused.out;
   EXPECT_EQ(planesdf::Map::load(dir.path() + "/b.psdf").frames(), 8u);
 
+  // info takes what fuse and detect take, whatever the extension's case.
+  std::filesystem::copy_file(dir.path() + "/b.psdf", dir.path() + "/B.PSDF");
+  const auto map_info = planesdf::test::runCli("info " + dir.path() + "/B.PSDF");
+  EXPECT_EQ(map_info.exit_code, 0) << map_info.out;
+  EXPECT_NE(map_info.out.find("plane 0"), std::string::npos) << map_info.out;
+  const auto log_info = planesdf::test::runCli("info " + before);
+  EXPECT_EQ(log_info.exit_code, 0) << log_info.out;
+  EXPECT_NE(log_info.out.find("3D range scans: 8"), std::string::npos) << log_info.out;
+  EXPECT_NE(log_info.out.find("640x480"), std::string::npos) << log_info.out;
+
   const std::string missing = dir.path() + "/missing.rawlog";
   const auto bad = planesdf::test::runCli("fuse " + missing + " --out " + dir.path() + "/m.psdf");
   EXPECT_NE(bad.exit_code, 0);
