@@ -1,9 +1,10 @@
 #pragma once
-// Wall-time helpers shared by the CLI commands that report timings.
+// Wall- and CPU-time helpers shared by the CLI commands that report timings.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
+#include <ctime>
 #include <vector>
 
 namespace planesdf::cli {
@@ -13,6 +14,13 @@ using Clock = std::chrono::steady_clock;
 /// Milliseconds since `t0`.
 inline double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+/// CPU time of all the process's threads so far, ms (spinning threads count, idle ones do not).
+inline double processCpuMs() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
 }
 
 /// The q-quantile (nearest rank, q in [0, 1]) of `v`; NaN when empty.

@@ -72,7 +72,7 @@ struct Config {
   /// above normal_max_curvature) and at least normal_rough_share of 4 or 16 times as many
   /// neighbours are not flat either (a noise layer as thick as the neighbourhood, not an edge),
   /// the normal is taken from those, up to normal_knn_max, at the flattest scale (design.md,
-  /// "Noisy clouds"). normal_knn_max = normal_knn keeps one scale.
+  /// "Noisy clouds (opt-in)"). normal_knn_max = normal_knn keeps one scale.
   int normal_knn_max = 20;
   double normal_max_curvature = 0.05;
   double normal_rough_share = 0.0;

@@ -170,10 +170,10 @@ void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads
 }
 
 // PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max. A larger neighbourhood
-// is tried only where the smaller one is not flat, and kept only where at least `rough_share` of
-// its points are not flat at the smallest scale either: noise is a property of a region, an
-// edge or a step is a line through smooth surfaces (design.md, "Noisy clouds"). `spread`
-// receives the neighbours' RMS distance from their plane.
+// is tried only where the smaller one is not flat, and kept only where at least
+// cfg.normal_rough_share of its points are not flat at the smallest scale either: noise is a
+// property of a region, an edge or a step is a line through smooth surfaces (design.md, "Noisy
+// clouds (opt-in)"). `spread` receives the neighbours' RMS distance from their plane.
 void knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, int threads,
                 std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature,
                 std::vector<float>& spread) {

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <string>
+#include <thread>
 
 #include "planesdf/io/atomic_file.hpp"
 #include "test_support.hpp"
@@ -30,6 +31,13 @@ TEST(BenchCli, ShortRunWritesSaneJson) {
   EXPECT_GT(med, 0.0);
   EXPECT_LT(med, 60000.0);
   EXPECT_GE(j.at("integrate_ms_p95").get<double>(), med);
+  // CPU time of all threads: some, and at most every core busy for the whole call (plus a
+  // clock tick of slack).
+  const double cpu = j.at("integrate_cpu_ms_median").get<double>();
+  EXPECT_GT(cpu, 0.0);
+  EXPECT_LE(cpu, j.at("integrate_ms_max").get<double>() *
+                         static_cast<double>(std::thread::hardware_concurrency()) +
+                     10.0);
   // The stages of a frame: each takes some time and none more than the largest whole call.
   const double max_ms = j.at("integrate_ms_max").get<double>();
   for (const char* k : {"tracking_ms_median", "points_ms_median", "fusion_ms_median"}) {
