@@ -35,7 +35,8 @@ class ChangeDetector {
   using Callback = std::function<void(const ChangeEvent&)>;
 
   /// Keeps a copy of `reference` (or takes it). Throws planesdf::Error("config", ...) on
-  /// invalid parameters.
+  /// invalid parameters and when `cfg` gives the maps another geometry than the reference was
+  /// built with (voxel size, truncation, band): detection reads the maps at the Config's.
   ChangeDetector(const Map& reference, const Config& cfg);
   ChangeDetector(Map&& reference, const Config& cfg);
 
@@ -44,7 +45,8 @@ class ChangeDetector {
   void onEvent(Callback callback);
 
   /// Compares `current` with the reference (see the file comment) and notifies. `current` must
-  /// be the same session's map from call to call (plane ids are matched by id).
+  /// be the same session's map from call to call (plane ids are matched by id), built with the
+  /// reference's geometry (else planesdf::Error("current map", ...)).
   UpdateStats update(const Map& current);
 
   /// The active changes (latest state, status of their last notification), ordered by id.

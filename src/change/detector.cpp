@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <sstream>
+#include <string>
 #include <utility>
 
 #include "planesdf/config_io.hpp"
@@ -37,9 +39,32 @@ bool materiallyDifferent(const ChangeEvent& before, const ChangeEvent& after) {
 ChangeDetector::ChangeDetector(const Map& reference, const Config& cfg)
     : ChangeDetector(Map(reference), cfg) {}
 
+namespace {
+
+/// Throws planesdf::Error(`what`, ...) when `map` was built with another voxel size, truncation
+/// or band than `cfg` says.
+void requireGeometry(const Config& cfg, const Map& map, const std::string& what,
+                     const std::string& map_name) {
+  const Config& m = map.config();
+  const auto check = [&](const char* key, double config_value, double map_value) {
+    if (config_value == map_value) return;
+    std::ostringstream msg;
+    msg << map_name << " was built with " << key << " " << map_value << ", the detector's config "
+        << "says " << config_value << ": build both maps and the detector with one geometry";
+    throw Error(what, msg.str());
+  };
+  check("voxel_size", cfg.voxel_size, m.voxel_size);
+  check("truncation_voxels", cfg.truncation_voxels, m.truncation_voxels);
+  check("fuse_band", cfg.fuse_band, m.fuse_band);
+  check("below_band", cfg.below_band, m.below_band);
+}
+
+}  // namespace
+
 ChangeDetector::ChangeDetector(Map&& reference, const Config& cfg)
     : reference_(std::move(reference)), cfg_(cfg) {
   validateConfig(cfg_, "config");
+  requireGeometry(cfg_, reference_, "config", "the reference map");
   for (const PlaneSdf& p : reference_.planes())
     reference_maps_.push_back(computePlaneMaps(p, reference_.planes(), cfg_, &reference_.points(),
                                                surfaceRimCells(reference_)));
@@ -58,8 +83,7 @@ std::vector<ChangeEvent> ChangeDetector::events() const {
 UpdateStats ChangeDetector::update(const Map& current) {
   const auto t0 = std::chrono::steady_clock::now();
   UpdateStats stats;
-  if (reference_.config().voxel_size != current.config().voxel_size)
-    throw Error("", "the reference and current maps have different voxel sizes");
+  requireGeometry(cfg_, current, "current map", "the current map");
   const auto& cp = current.planes();
 
   // Current plane maps, recomputed when the plane's volume (or the plane set) changed.

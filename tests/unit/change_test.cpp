@@ -892,6 +892,29 @@ TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
   EXPECT_EQ(det.events().size(), 3u);
 }
 
+TEST(ChangeDetector, AConfigOrCurrentMapOfAnotherGeometryIsAnError) {
+  Config coarse;
+  coarse.voxel_size = 0.01;
+  try {
+    ChangeDetector det(beforeMap(), coarse);
+    ADD_FAILURE() << "a 1 cm config over a 7 mm reference was accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), "config");
+    EXPECT_NE(e.message().find("voxel_size 0.007"), std::string::npos) << e.what();
+  }
+  ChangeDetector det(beforeMap(), Config{});
+  Config band = Config{};
+  band.fuse_band = 0.4;
+  Map cur(band);
+  try {
+    det.update(cur);
+    ADD_FAILURE() << "a current map with a 0.4 m band was accepted";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), "current map");
+    EXPECT_NE(e.message().find("fuse_band 0.4"), std::string::npos) << e.what();
+  }
+}
+
 TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
   // The current session first sees the table without the box (removed), then the box is back
   // and seen from many more views: the removal is retracted.
