@@ -1,13 +1,17 @@
 // Soak: one map fed 10,000 frames of the same tabletop, as a headset that keeps looking around one
 // room for five and a half minutes at 30 Hz. Nothing may grow with the frame count once the
-// scene has been seen: planes, blocks, kept points, memory. The map must still be right.
+// scene has been seen: planes, blocks, kept points, memory, time per frame. The map must still
+// be right.
 
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <fstream>
 #include <vector>
+
+#include <unistd.h>
 
 #include "analytic_scene.hpp"
 #include "planesdf/height_map.hpp"
@@ -19,6 +23,19 @@ namespace {
 struct MapSize {
   std::size_t planes = 0, blocks = 0, points = 0, bytes = 0;
 };
+
+/// Resident set size of this process, MB (0 when /proc is not there).
+double residentMb() {
+  std::ifstream statm("/proc/self/statm");
+  double pages = 0.0, resident = 0.0;
+  statm >> pages >> resident;
+  return resident * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
+}
+
+double median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
 
 MapSize sizeOf(const Map& map) {
   MapSize s;
@@ -48,21 +65,27 @@ TEST(Soak, TenThousandFramesOfOneSceneGrowNothingAndKeepTheMapRight) {
   for (const Pose& p : poses) frames.push_back(test::renderDepth(scene, k, p));
 
   Config cfg;
-  cfg.threads = 2;
+  cfg.threads = 1;         // a timing bound that holds beside the other tests on a shared machine
   cfg.voxel_size = 0.012;  // fewer blocks per frame: the soak is about counts, not detail
   Map map(cfg);
   const int kFrames = 10000, kWarmUp = 10 * static_cast<int>(poses.size());
   MapSize warm, peak;
+  double warm_rss = 0.0, peak_rss = 0.0;
+  std::vector<double> ms;
   for (int i = 0; i < kFrames; ++i) {
     const std::size_t f = static_cast<std::size_t>(i) % poses.size();
-    map.integrate(frames[f], poses[f]);
-    if (i + 1 == kWarmUp) warm = sizeOf(map);
+    ms.push_back(map.integrate(frames[f], poses[f]).milliseconds);
+    if (i + 1 == kWarmUp) {
+      warm = sizeOf(map);
+      warm_rss = residentMb();
+    }
     if (i + 1 > kWarmUp && (i + 1) % 500 == 0) {
       const MapSize s = sizeOf(map);
       peak.planes = std::max(peak.planes, s.planes);
       peak.blocks = std::max(peak.blocks, s.blocks);
       peak.points = std::max(peak.points, s.points);
       peak.bytes = std::max(peak.bytes, s.bytes);
+      peak_rss = std::max(peak_rss, residentMb());
     }
   }
   EXPECT_EQ(map.frames(), static_cast<std::uint64_t>(kFrames));
@@ -72,6 +95,14 @@ TEST(Soak, TenThousandFramesOfOneSceneGrowNothingAndKeepTheMapRight) {
   EXPECT_EQ(peak.blocks, warm.blocks);
   EXPECT_EQ(peak.points, warm.points);
   EXPECT_LE(peak.bytes, warm.bytes + warm.bytes / 100);
+  // The process's resident memory is flat too (16 MB: allocator slack, not the map).
+  EXPECT_LE(peak_rss, warm_rss + 16.0) << "resident " << warm_rss << " MB after the warm-up";
+  // A frame costs no more at the end than after the warm-up: the median of the last 1,000
+  // frames within 3 times that of the 1,000 after the warm-up (a bound loose enough for a
+  // loaded machine, tight against a cost that grows with the frame count).
+  const double early = median({ms.begin() + kWarmUp, ms.begin() + kWarmUp + 1000});
+  const double late = median({ms.end() - 1000, ms.end()});
+  EXPECT_LE(late, 3.0 * early) << "ms per frame: " << early << " early, " << late << " late";
 
   // The table's height map still holds the box at 6 cm and the cylinder at 10 cm, to a voxel.
   const PlaneSdf* table = nullptr;
