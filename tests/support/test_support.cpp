@@ -36,9 +36,13 @@ std::string sharedDir() {
   return PLANESDF_SHARED_DIR;
 }
 
-std::string mosdDir() { return sharedDir() + "/data/mosd"; }
+std::string mosdDir() {
+  return sharedDir() + "/data/mosd";
+}
 
-bool haveMosd() { return fs::is_regular_file(mosdDir() + "/pairs.tsv"); }
+bool haveMosd() {
+  return fs::is_regular_file(mosdDir() + "/pairs.tsv");
+}
 
 void writeBytes(const std::string& path, const std::string& bytes) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
