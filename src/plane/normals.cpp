@@ -181,27 +181,29 @@ void knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, i
     normalFromCovariance(neighbourCovariance(points, nb), normals[i], curvature[i], &spread[i]);
   });
   if (cfg.normal_knn_max <= cfg.normal_knn) return;
-  std::vector<std::uint8_t> rough(points.size());
-  for (std::size_t i = 0; i < points.size(); ++i)
-    rough[i] = !(static_cast<double>(curvature[i]) <= cfg.normal_max_curvature);  // NaN: rough
+  const auto notFlat = [&](std::uint32_t i) {
+    return !(static_cast<double>(curvature[i]) <= cfg.normal_max_curvature);  // NaN: no normal
+  };
+  std::vector<std::uint8_t> rough(points.size());  // at the smallest scale
+  for (std::uint32_t i = 0; i < points.size(); ++i) rough[i] = notFlat(i);
   for (int k = 4 * cfg.normal_knn; k / 4 < cfg.normal_knn_max; k *= 4) {
-    forEachKnnWhere(
-        points, std::min(k, cfg.normal_knn_max), threads,
-        [&](std::uint32_t i) { return rough[i] != 0; },
-        [&](std::uint32_t i, const Neighbours& nb) {
-          std::size_t rough_nb = 0;
-          for (const auto& e : nb) rough_nb += rough[e.second];
-          if (static_cast<double>(rough_nb) <
-              cfg.normal_rough_share * static_cast<double>(nb.size()))
-            return;
-          Eigen::Vector3f n;
-          float c = 0.0f, rms = 0.0f;
-          if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms)) return;
-          if (!(c < curvature[i])) return;
-          normals[i] = n;
-          curvature[i] = c;
-          spread[i] = rms;
-        });
+    // Points a smaller scale made flat keep it.
+    forEachKnnWhere(points, std::min(k, cfg.normal_knn_max), threads, notFlat,
+                    [&](std::uint32_t i, const Neighbours& nb) {
+                      std::size_t rough_nb = 0;
+                      for (const auto& e : nb) rough_nb += rough[e.second];
+                      if (static_cast<double>(rough_nb) <
+                          cfg.normal_rough_share * static_cast<double>(nb.size()))
+                        return;
+                      Eigen::Vector3f n;
+                      float c = 0.0f, rms = 0.0f;
+                      if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms))
+                        return;
+                      if (c >= curvature[i]) return;  // NaN: no normal yet, any will do
+                      normals[i] = n;
+                      curvature[i] = c;
+                      spread[i] = rms;
+                    });
   }
 }
 
