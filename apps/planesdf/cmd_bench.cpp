@@ -144,7 +144,7 @@ int runSingleBench(const BenchArgs& args) {
   std::vector<double> integrate_ms, integrate_cpu_ms, current_ms, tracking_ms, points_ms, fusion_ms;
   Map reference(cfg), current(cfg);
   // As a real-time pipeline does at start-up: the maps' block memory is faulted in before the
-  // first frame (on this VM fresh memory costs ~3 ms per 2 MiB; see Map::reserveMemory).
+  // first frame (fresh memory costs a page fault and zeroing per page; see Map::reserveMemory).
   const auto reserve_bytes = static_cast<std::size_t>(args.reserve_mb) << 20;
   const auto tr = Clock::now();
   reference.reserveMemory(reserve_bytes);

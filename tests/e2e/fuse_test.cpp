@@ -76,13 +76,7 @@ TEST(FuseCli, ConfigFileSetsTheMapsConfigAndFlagsOverrideIt) {
 
 // A 160 x 120 pinhole camera: small TUM folders for the CLI.
 Intrinsics smallCamera() {
-  Intrinsics k;
-  k.width = 160;
-  k.height = 120;
-  k.fx = k.fy = 130;
-  k.cx = 79.5;
-  k.cy = 59.5;
-  return k;
+  return test::pinhole(160, 120, 130.0);
 }
 
 /// A floor, plus a 10 cm box when `box`.

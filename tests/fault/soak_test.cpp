@@ -52,12 +52,7 @@ TEST(Soak, TenThousandFramesOfOneSceneGrowNothingAndKeepTheMapRight) {
   const test::AnalyticScene scene = test::tableWith(
       {test::Primitive::box({-0.25, -0.1, test::kTableTop}, {-0.15, 0.0, test::kTableTop + 0.06}),
        test::Primitive::cylinder({0.2, 0.1, test::kTableTop}, 0.05, 0.10)});
-  Intrinsics k;
-  k.width = 80;
-  k.height = 60;
-  k.fx = k.fy = 65.0;
-  k.cx = 39.5;
-  k.cy = 29.5;
+  const Intrinsics k = test::pinhole(80, 60, 65.0);
   const Eigen::Vector3d centre(0.0, 0.0, test::kTableTop);
   std::vector<Pose> poses = test::ringPoses(centre, 1.2, 0.6, 12);
   for (const Pose& p : test::ringPoses(centre, 0.9, 0.9, 12)) poses.push_back(p);

@@ -158,6 +158,16 @@ AnalyticScene tableWith(std::vector<Primitive> objects) {
   return s;
 }
 
+Intrinsics pinhole(int width, int height, double f) {
+  Intrinsics k;
+  k.width = width;
+  k.height = height;
+  k.fx = k.fy = f;
+  k.cx = 0.5 * width - 0.5;
+  k.cy = 0.5 * height - 0.5;
+  return k;
+}
+
 Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target, const Eigen::Vector3d& up) {
   const Eigen::Vector3d z = (target - eye).normalized();
   Eigen::Vector3d x = z.cross(up);

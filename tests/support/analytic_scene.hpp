@@ -59,6 +59,9 @@ Pose lookAt(const Eigen::Vector3d& eye, const Eigen::Vector3d& target,
 std::vector<Pose> ringPoses(const Eigen::Vector3d& center, double radius, double height, int n,
                             const Eigen::Vector3d& up = Eigen::Vector3d::UnitZ());
 
+/// A pinhole camera `width` x `height` pixels with focal length `f` (pixels), centred.
+Intrinsics pinhole(int width, int height, double f);
+
 /// Noise-free depth image (metres; 0 where nothing is hit within max_depth).
 DepthFrame renderDepth(const AnalyticScene& scene, const Intrinsics& k, const Pose& camera_to_world,
                        double max_depth = 10.0);

@@ -103,13 +103,7 @@ struct Scene {
 };
 
 Intrinsics smallCamera() {
-  Intrinsics K;
-  K.width = 320;
-  K.height = 240;
-  K.fx = K.fy = 262.5;
-  K.cx = 159.5;
-  K.cy = 119.5;
-  return K;
+  return test::pinhole(320, 240, 262.5);
 }
 
 using test::lookAt;
