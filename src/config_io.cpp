@@ -80,6 +80,7 @@ const std::vector<Param>& params() {
       {"plane_merge_coplanar", &Config::plane_merge_coplanar},
       {"through_band_top", &Config::through_band_top},
       {"through_band_fraction", &Config::through_band_fraction},
+      {"thin_support_ratio", &Config::thin_support_ratio},
       {"plane_min_extent", &Config::plane_min_extent},
       {"plane_min_width", &Config::plane_min_width},
       {"ransac_max_samples", &Config::ransac_max_samples},
@@ -192,6 +193,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "through_band_top must be in [0, 1]");
   require(cfg.through_band_fraction >= 0.0 && std::isfinite(cfg.through_band_fraction),
           "through_band_fraction must be finite and >= 0");
+  require(cfg.thin_support_ratio >= 0.0 && cfg.thin_support_ratio <= 1.0,
+          "thin_support_ratio must be in [0, 1]");
   require(cfg.blob_large_area >= 0.0 && std::isfinite(cfg.blob_large_area),
           "blob_large_area must be finite and >= 0");
   require(cfg.bins_theta >= 1 && cfg.bins_phi >= 1 && cfg.bins_lambda >= 1 &&

@@ -193,6 +193,11 @@ struct Config {
   /// (docs/design.md, "Structure through the band"). An overlap above 1 disables the rule.
   double through_band_top = 0.2;
   double through_band_fraction = 1.0 / 3.0;
+  /// Maps splatted from clouds without a pixel grid: a blob whose surface rests on fewer points
+  /// (TSDF weight) than this fraction of what the surfaces within 10 cm of it rest on is noise
+  /// (flying pixels, a far layer's spikes), not an object (design.md, "Thin support"). 0 keeps
+  /// every blob.
+  double thin_support_ratio = 0.5;
   /// Noise-aware height test (docs/design.md, "rough surfaces"): a cell changes only when its
   /// height differs by more than max(delta_h, roughness_factor * r), r the larger roughness of
   /// the two maps there (computeRoughness over tiles of roughness_tile cells). A far wall fused

@@ -281,6 +281,52 @@ void forBandPointsIn(const Plane& plane, const HeightMap& hm,
   }
 }
 
+/// How many measurements a surface rests on: the mean TSDF weight of the voxels at the height
+/// map's surface (the largest of the three around it per column), over `cells` above the
+/// object threshold (`blob`) and over the other observed cells of their box grown by `ring`
+/// (`around`). A splat adds one to each voxel it reaches, so the weight counts the points within
+/// a splat radius (design.md, "Thin support"). Both 0 when either set of cells is empty.
+struct SurfaceSupport {
+  double blob = 0.0, around = 0.0;
+};
+
+SurfaceSupport surfaceSupport(const TsdfVolume& vol, const HeightMap& hm, const Config& cfg,
+                              const std::vector<Eigen::Vector2i>& cells, int ring) {
+  Eigen::AlignedBox2i box;
+  for (const Eigen::Vector2i& c : cells) box.extend(c);
+  if (box.isEmpty()) return {};
+  box.min() = (box.min().array() - ring).max(0);
+  box.max() = (box.max().array() + ring).min(Eigen::Array2i(hm.width - 1, hm.height - 1));
+  const int bw = box.sizes().x() + 1;
+  const auto local = [&](int x, int y) {
+    return static_cast<std::size_t>((y - box.min().y()) * bw + (x - box.min().x()));
+  };
+  std::vector<std::uint8_t> in_blob(static_cast<std::size_t>(bw) * (box.sizes().y() + 1), 0);
+  for (const Eigen::Vector2i& c : cells) in_blob[local(c.x(), c.y())] = 1;
+  const double vs = vol.voxelSize();
+  const auto surfaceWeight = [&](int x, int y) {
+    const int k = static_cast<int>(std::floor(hm.at(x, y) / vs));
+    float w = 0.0f;
+    for (int dk = -1; dk <= 1; ++dk)
+      if (const TsdfVoxel* v = vol.voxel(Eigen::Vector3i(hm.i0 + x, hm.j0 + y, k + dk)))
+        w = std::max(w, v->weight);
+    return static_cast<double>(w);
+  };
+  double sum[2] = {0.0, 0.0};
+  int count[2] = {0, 0};
+  for (int y = box.min().y(); y <= box.max().y(); ++y)
+    for (int x = box.min().x(); x <= box.max().x(); ++x) {
+      const float h = hm.at(x, y);
+      if (h == kUnobserved) continue;
+      const int side = in_blob[local(x, y)] ? 0 : 1;
+      if (side == 0 && !(h > cfg.h_obj)) continue;  // a grown cell on the support
+      sum[side] += surfaceWeight(x, y);
+      ++count[side];
+    }
+  if (count[0] == 0 || count[1] == 0) return {};
+  return {sum[0] / count[0], sum[1] / count[1]};
+}
+
 /// Observed voxels of column (i, j) with centre height in [lo, hi].
 void columnVoxels(const TsdfVolume& vol, int i, int j, double lo, double hi, float w_min,
                   std::vector<Eigen::Vector3i>& out) {
@@ -872,6 +918,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   };
 
   const int large_cells = largeObjectCells(cfg, ht.cell_size);
+  // The surfaces a blob's support is compared with: those within 10 cm of it.
+  const int support_ring = static_cast<int>(std::ceil(0.10 / hs.cell_size));
   // How wide the rim of a static object can come out in a change mask of splatted maps: the
   // surface's placement (rim_cells) plus the mask's dilation.
   const int rim_width = rim_cells > 0 ? rim_cells + cfg.dilation_cells : 0;
@@ -984,6 +1032,13 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         !shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
                        small_move_cells))
       continue;
+
+    // In a splatted map, a blob must be a surface about as well supported by points as the
+    // surfaces around it (design.md, "Thin support").
+    if (rim_cells > 0 && cfg.thin_support_ratio > 0.0) {
+      const SurfaceSupport d = surfaceSupport(src.volume, hs, cfg, blob.cells, support_ring);
+      if (d.around > 0.0 && d.blob < cfg.thin_support_ratio * d.around) continue;
+    }
 
     // A sliver of an object whose loss has 3D evidence, with another object standing inside the
     // old footprint now: that object replaced it (design.md, "Replaced inside the footprint").

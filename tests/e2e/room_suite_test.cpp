@@ -64,4 +64,33 @@ TEST(RoomSuite, ShelfBoardsNearEyeHeightAndTableLegsAreNoChange) {
   }
 }
 
+/// Scores room pair `scene` as raw accumulated clouds: every frame's points of a session, noise
+/// included, without viewpoints.
+nlohmann::json scoreRawPair(const TempDir& tmp, const std::string& scene) {
+  const auto sim =
+      runCli("simulate --scene '" + sceneFile(scene) + "' --out '" + tmp.file("sim") + "'");
+  EXPECT_EQ(sim.exit_code, 0) << sim.out;
+  if (sim.exit_code != 0) return nullptr;
+  return detectAndScore(tmp, "sim/reference.ply", "sim/current.ply", "", "raw");
+}
+
+// Stray points over far walls and flying pixels at depth edges splat into thin blobs that rest
+// on a fraction of the points of the surfaces around them (design.md, "Thin support").
+TEST(RoomSuite, RawCloudsOfAnUnchangedRoomShowNoChange) {
+  TempDir tmp;
+  const nlohmann::json r = scoreRawPair(tmp, "room00_none");
+  ASSERT_FALSE(r.is_null());
+  EXPECT_EQ(r["wrong"].get<int>(), 0);
+  EXPECT_EQ(r["predicted_clusters"].get<int>(), 0);
+}
+
+TEST(RoomSuite, RawCloudsShowARemovedObjectAndNothingElse) {
+  TempDir tmp;
+  const nlohmann::json r = scoreRawPair(tmp, "room02_remove");
+  ASSERT_FALSE(r.is_null());
+  EXPECT_EQ(r["wrong"].get<int>(), 0);
+  EXPECT_EQ(r["missed"].get<int>(), 0);
+  EXPECT_GE(r["f1"].get<double>(), 0.9);
+}
+
 }  // namespace

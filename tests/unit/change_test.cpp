@@ -1005,3 +1005,63 @@ TEST(SessionCorrection, WallsGiveTheRotationAndTheShiftOfTheDrift) {
     EXPECT_LT((q - E * p).norm(), 0.01) << "pair " << m.source_id << " -> " << m.target_id;
   }
 }
+
+namespace {
+
+/// A 1.6 m floor as an unorganised cloud on a 5 mm grid, with `extra` points added.
+planesdf::PointCloud floorCloudWith(const std::vector<Eigen::Vector3f>& extra) {
+  planesdf::PointCloud c;
+  for (double x = -0.8; x < 0.8; x += 0.005)
+    for (double y = -0.8; y < 0.8; y += 0.005)
+      c.points.emplace_back(static_cast<float>(x), static_cast<float>(y), 0.0f);
+  c.points.insert(c.points.end(), extra.begin(), extra.end());
+  c.width = static_cast<std::uint32_t>(c.points.size());
+  return c;
+}
+
+/// The faces of an axis-aligned box on the floor (centre (x, y), half size s, height h) sampled
+/// every `step` metres.
+std::vector<Eigen::Vector3f> boxPoints(double x, double y, double s, double h, double step) {
+  std::vector<Eigen::Vector3f> p;
+  for (double a = -s; a <= s + 1e-9; a += step) {
+    for (double b = -s; b <= s + 1e-9; b += step) p.emplace_back(x + a, y + b, h);
+    for (double z = step; z < h; z += step) {
+      p.emplace_back(x + a, y - s, z);
+      p.emplace_back(x + a, y + s, z);
+      p.emplace_back(x - s, y + a, z);
+      p.emplace_back(x + s, y + a, z);
+    }
+  }
+  return p;
+}
+
+}  // namespace
+
+TEST(ThinSupport, ASparseClusterOverASplattedFloorIsNoiseAndADenseBoxIsAnObject) {
+  // The same 10 x 10 x 6 cm box sampled as densely as the floor (5 mm) and a sixth as densely
+  // (12 mm: a few flying pixels in the shape of a box), added in the current session of a
+  // splatted floor.
+  const double dense_step = 0.005, sparse_step = 0.012;
+  Config cfg;
+  const Map ref = Map::fromCloud(floorCloudWith({}), cfg);
+  std::vector<Eigen::Vector3f> extra = boxPoints(0.35, 0.35, 0.05, 0.06, dense_step);
+  const std::vector<Eigen::Vector3f> sparse = boxPoints(-0.35, -0.35, 0.05, 0.06, sparse_step);
+  extra.insert(extra.end(), sparse.begin(), sparse.end());
+  const Map cur = Map::fromCloud(floorCloudWith(extra), cfg);
+  ASSERT_TRUE(ref.splatted() && cur.splatted());
+  const auto near = [](const ChangeSet& set, double x, double y) {
+    return std::count_if(set.events.begin(), set.events.end(), [&](const ChangeEvent& e) {
+      return (e.primary().centroid.head<2>() - Eigen::Vector2d(x, y)).norm() < 0.08;
+    });
+  };
+  const ChangeSet kept = detectChanges(ref, cur, cfg);
+  EXPECT_EQ(near(kept, 0.35, 0.35), 1);
+  EXPECT_EQ(near(kept, -0.35, -0.35), 0);
+  EXPECT_EQ(kept.events.size(), 1u);
+  // Without the rule the sparse box is an object too: its surface is as high as the dense box's,
+  // and its splats close the gaps between its points.
+  cfg.thin_support_ratio = 0.0;
+  const ChangeSet all = detectChanges(ref, cur, cfg);
+  EXPECT_EQ(near(all, 0.35, 0.35), 1);
+  EXPECT_EQ(near(all, -0.35, -0.35), 1);
+}
