@@ -34,6 +34,7 @@ const std::vector<Param>& params() {
       {"plane_merge_offset", &Config::plane_merge_offset},
       {"normal_knn", &Config::normal_knn},
       {"normal_knn_max", &Config::normal_knn_max},
+      {"noisy_cloud_share", &Config::noisy_cloud_share},
       {"normal_max_curvature", &Config::normal_max_curvature},
       {"normal_rough_share", &Config::normal_rough_share},
       {"cloud_smooth_knn", &Config::cloud_smooth_knn},
@@ -213,6 +214,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "splat_noise_reach must be in [0, 10]");
   require(std::isfinite(cfg.splat_max_noise) && cfg.splat_max_noise >= 0.0,
           "splat_max_noise must be >= 0");
+  require(cfg.noisy_cloud_share >= 0.0 && cfg.noisy_cloud_share <= 1.0,
+          "noisy_cloud_share must be in [0, 1]");
   require(cfg.normal_knn_max >= cfg.normal_knn && cfg.normal_knn_max <= 4000,
           "normal_knn_max must be in [normal_knn, 4000]");
   require(cfg.normal_max_curvature >= 0.0 && cfg.normal_max_curvature <= 1.0 / 3.0,

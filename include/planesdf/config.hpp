@@ -68,12 +68,16 @@ struct Config {
 
   // --- plane detection, whole cloud ------------------------------------------------------------
   int normal_knn = 20;  ///< k for PCA normals
-  /// Unorganised clouds: where the normal_knn nearest neighbours are not flat (surface variation
-  /// above normal_max_curvature) and at least normal_rough_share of 4 or 16 times as many
-  /// neighbours are not flat either (a noise layer as thick as the neighbourhood, not an edge),
-  /// the normal is taken from those, up to normal_knn_max, at the flattest scale (design.md,
-  /// "Noisy clouds (opt-in)"). normal_knn_max = normal_knn keeps one scale.
-  int normal_knn_max = 20;
+  /// An unorganised cloud is noisy (raw accumulated frames, not a reconstruction) when at least
+  /// this share of its points lie in layers thicker than a voxel: their normal_knn neighbours'
+  /// RMS distance from their plane exceeds voxel_size (isNoisyCloud; design.md, "Noisy clouds").
+  /// Only noisy clouds get the normals and splat options below. 0: every cloud is noisy.
+  double noisy_cloud_share = 0.01;
+  /// Noisy clouds: where the normal_knn nearest neighbours are not flat (surface variation above
+  /// normal_max_curvature) and at least normal_rough_share of 4 or 16 times as many neighbours
+  /// are not flat either, the normal is taken from those, up to normal_knn_max, at the flattest
+  /// scale (design.md, "Noisy clouds"). normal_knn_max = normal_knn keeps one scale.
+  int normal_knn_max = 320;
   double normal_max_curvature = 0.05;
   double normal_rough_share = 0.0;
   double vmf_lambda_deg = 10.0;  ///< DP-vMF-means cluster angle λ
@@ -133,15 +137,16 @@ struct Config {
   /// Lateral radius (in voxels) of the cylinder a point with a normal updates when an
   /// unorganised cloud is splatted (integratePointsWithNormals).
   double splat_radius_voxels = 1.0;
-  /// A splatted point also marks free space up to this many times its local noise (the RMS
-  /// distance of its normal's neighbours to their plane) beyond the truncation in front of it,
-  /// at most two truncations more: what a ray would have carved through the noise layer of a
-  /// surface (design.md, "Noisy clouds (opt-in)"). 0: the truncation only.
-  double splat_noise_reach = 0.0;
-  /// A point whose local noise (as above) exceeds this fraction of the truncation is not
-  /// splatted: its surface is placed no better than a measurement beyond surface_max_depth,
-  /// whose noise is half the truncation (design.md, "Noisy clouds (opt-in)"). 0 keeps all.
-  double splat_max_noise = 0.0;
+  /// A splatted point of a noisy cloud also marks free space up to this many times its local
+  /// noise (the RMS distance of its normal's neighbours to their plane) beyond the truncation in
+  /// front of it, at most two truncations more: what a ray would have carved through the noise
+  /// layer of a surface (design.md, "Noisy clouds"). 0: the truncation only.
+  double splat_noise_reach = 3.0;
+  /// A point of a noisy cloud whose local noise (as above) exceeds this fraction of the
+  /// truncation is not splatted: its surface is placed no better than a measurement beyond
+  /// surface_max_depth, whose noise is half the truncation (design.md, "Noisy clouds"). 0 keeps
+  /// all.
+  double splat_max_noise = 0.5;
   /// Unorganised clouds are first smoothed by projecting each point onto the plane of its this
   /// many nearest neighbours (projectToLocalPlanes); 0 keeps the points as given. Opt-in for raw
   /// accumulated frame points (docs/accuracy.md: more F1, fewer missed, more wrong clusters).

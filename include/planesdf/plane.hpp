@@ -118,17 +118,26 @@ std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vecto
                                                   const Config& cfg);
 
 /// PCA normals, one per point (NaN for invalid points or too few neighbours). Unorganised clouds:
-/// the cfg.normal_knn nearest neighbours (hash-grid search), or up to cfg.normal_knn_max where
-/// those are not flat (cfg.normal_max_curvature). Organised clouds: an image window of
-/// about cfg.normal_window metres (integral images; blurred across depth edges, which shows up in
-/// the curvature). Oriented toward sensorOrigin(cloud) when there is one, else sign as computed.
-/// `curvature`, when given, receives the surface variation λ0/(λ0+λ1+λ2) per point (NaN when
-/// the normal is NaN). `spread`, when given, receives per point of an unorganised cloud the RMS
-/// distance of the neighbours its normal came from to their plane (the local noise; empty for
-/// organised clouds). Parallel (OpenMP, cfg.threads; 0 = OpenMP default).
+/// the cfg.normal_knn nearest neighbours (hash-grid search), or in a noisy cloud up to
+/// cfg.normal_knn_max where those are not flat (cfg.normal_max_curvature). Organised clouds: an
+/// image window of about cfg.normal_window metres (integral images; blurred across depth edges,
+/// which shows up in the curvature). Oriented toward sensorOrigin(cloud) when there is one, else
+/// sign as computed. `curvature`, when given, receives the surface variation λ0/(λ0+λ1+λ2) per
+/// point (NaN when the normal is NaN). `spread`, when given, receives per point of an unorganised
+/// cloud the RMS distance of the neighbours its normal came from to their plane (the local noise;
+/// empty for organised clouds). `noisy`, when given, receives isNoisyCloud of the one-scale spread
+/// (false for organised clouds); only noisy clouds get the larger scales. Parallel (OpenMP,
+/// cfg.threads; 0 = OpenMP default).
 std::vector<Eigen::Vector3f> estimateNormals(const PointCloud& cloud, const Config& cfg,
                                              std::vector<float>* curvature = nullptr,
-                                             std::vector<float>* spread = nullptr);
+                                             std::vector<float>* spread = nullptr,
+                                             bool* noisy = nullptr);
+
+/// Whether an unorganised cloud is a noisy one (raw accumulated frames): at least
+/// cfg.noisy_cloud_share of its points have a `spread` (estimateNormals at one scale) beyond
+/// one voxel, a noise layer thicker than the map resolves. Reconstructions and meshes, exported
+/// from a TSDF at about the voxel size, are thinner everywhere (design.md, "Noisy clouds").
+bool isNoisyCloud(const std::vector<float>& spread, const Config& cfg);
 
 // --- whole-cloud detection ----------------------------------------------------------------------
 
@@ -145,6 +154,11 @@ Eigen::Vector3d estimateUp(const PointCloud& cloud, const Config& cfg);
 /// Normals point toward the sensor when sensorOrigin(cloud) exists; otherwise horizontal planes
 /// along +up and vertical planes toward the centroid of the cloud. Empty / all-NaN: no planes.
 PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg);
+
+/// segmentPlanes with the normals of an unorganised cloud already estimated (estimateNormals,
+/// one per point), so a caller that also needs them computes them once.
+PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg,
+                                const std::vector<Eigen::Vector3f>& normals);
 
 /// segmentPlanes(world, cfg).planes.
 std::vector<Plane> detectPlanes(const PointCloud& world, const Config& cfg);

@@ -589,12 +589,19 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
 
   IntegrateStats created;
   const auto tt = Clock::now();
+  // Unorganised clouds: one set of normals for the planes and the splats; a noisy cloud's
+  // points also carry their local noise (design.md, "Noisy clouds").
+  std::vector<Eigen::Vector3f> normals;
+  std::vector<float> spread;
+  bool noisy = false;
+  if (!cloud.isOrganized()) normals = estimateNormals(world, cfg_, nullptr, &spread, &noisy);
   if (whole_cloud || !cloud.isOrganized()) {
     // Without a pixel grid, supports and walls only, as in streams; a single organised view keeps
     // object faces (design.md, "Shelf boards are planes, object faces are not").
     const bool grid = cloud.isOrganized();
-    tracker_.merge(observationsOf(segmentPlanes(world, cfg_)), world.points,
-                   grid ? 0.0 : cfg_.plane_min_extent, grid ? 0.0 : cfg_.plane_min_width);
+    tracker_.merge(
+        observationsOf(grid ? segmentPlanes(world, cfg_) : segmentPlanes(world, cfg_, normals)),
+        world.points, grid ? 0.0 : cfg_.plane_min_extent, grid ? 0.0 : cfg_.plane_min_width);
   } else {
     tracker_.integrate(world.points, world.sensor_pose.translation());
   }
@@ -617,11 +624,9 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   } else {
     // No pixel grid: splat each point along its PCA normal.
     splatted_ = true;
-    std::vector<float> spread;
-    const std::vector<Eigen::Vector3f> normals = estimateNormals(world, cfg_, nullptr, &spread);
     const auto trunc = static_cast<float>(cfg_.truncation());
-    const auto reach_sigma = static_cast<float>(cfg_.splat_noise_reach);
-    const auto max_noise = static_cast<float>(cfg_.splat_max_noise) * trunc;
+    const auto reach_sigma = noisy ? static_cast<float>(cfg_.splat_noise_reach) : 0.0f;
+    const auto max_noise = noisy ? static_cast<float>(cfg_.splat_max_noise) * trunc : 0.0f;
     const bool has_sensor = sensorOrigin(world).has_value();
     // Without a sensor, a slab's top face just above the band tells its underside in the band
     // (orientUndersides): gathered, then dropped before fusion.

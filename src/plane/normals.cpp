@@ -169,18 +169,20 @@ void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads
       points, knn, threads, [](std::uint32_t) { return true; }, fn);
 }
 
-// PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max. A larger neighbourhood
-// is tried only where the smaller one is not flat, and kept only where at least
+// PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max in a noisy cloud
+// (returned; isNoisyCloud at scale k). A larger neighbourhood is tried only where the smaller
+// one is not flat, and kept only where at least
 // cfg.normal_rough_share of its points are not flat at the smallest scale either: noise is a
 // property of a region, an edge or a step is a line through smooth surfaces (design.md, "Noisy
-// clouds (opt-in)"). `spread` receives the neighbours' RMS distance from their plane.
-void knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, int threads,
+// clouds"). `spread` receives the neighbours' RMS distance from their plane.
+bool knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, int threads,
                 std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature,
                 std::vector<float>& spread) {
   forEachKnn(points, cfg.normal_knn, threads, [&](std::uint32_t i, const Neighbours& nb) {
     normalFromCovariance(neighbourCovariance(points, nb), normals[i], curvature[i], &spread[i]);
   });
-  if (cfg.normal_knn_max <= cfg.normal_knn) return;
+  const bool noisy = isNoisyCloud(spread, cfg);
+  if (!noisy || cfg.normal_knn_max <= cfg.normal_knn) return noisy;
   const auto notFlat = [&](std::uint32_t i) {
     return !(static_cast<double>(curvature[i]) <= cfg.normal_max_curvature);  // NaN: no normal
   };
@@ -205,6 +207,7 @@ void knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, i
                       spread[i] = rms;
                     });
   }
+  return noisy;
 }
 
 // --- organised clouds ----------------------------------------------------------------------------
@@ -341,25 +344,27 @@ void windowNormals(const PointCloud& cloud, const Config& cfg, int threads, int 
 
 std::vector<Eigen::Vector3f> estimateNormals(const PointCloud& cloud, const Config& cfg,
                                              std::vector<float>* curvature,
-                                             std::vector<float>* spread) {
+                                             std::vector<float>* spread, bool* noisy) {
   validatePlaneConfig(cfg);
   cloud.validate("point cloud");
-  return detail::estimateNormalsStrided(cloud, cfg, 1, curvature, spread);
+  return detail::estimateNormalsStrided(cloud, cfg, 1, curvature, spread, noisy);
 }
 
 namespace detail {
 
 std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, const Config& cfg,
                                                     int stride, std::vector<float>* curvature,
-                                                    std::vector<float>* spread) {
+                                                    std::vector<float>* spread, bool* noisy) {
   std::vector<Eigen::Vector3f> normals(cloud.size(), kNaNNormal);
   std::vector<float> curv(cloud.size(), kNaN);
   std::vector<float> rms(cloud.isOrganized() ? 0 : cloud.size(), kNaN);
+  if (noisy) *noisy = false;
   const int threads = ompThreads(cfg);
   if (cloud.isOrganized()) {
     windowNormals(cloud, cfg, threads, std::max(1, stride), normals, curv);
   } else {
-    knnNormals(cloud.points, cfg, threads, normals, curv, rms);
+    const bool is_noisy = knnNormals(cloud.points, cfg, threads, normals, curv, rms);
+    if (noisy) *noisy = is_noisy;
   }
   if (const auto sensor = sensorOrigin(cloud)) orientNormals(cloud.points, *sensor, normals);
   if (curvature) *curvature = std::move(curv);
@@ -368,6 +373,17 @@ std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, con
 }
 
 }  // namespace detail
+
+bool isNoisyCloud(const std::vector<float>& spread, const Config& cfg) {
+  std::size_t thick = 0, measured = 0;
+  for (const float s : spread) {
+    if (!std::isfinite(s)) continue;
+    ++measured;
+    thick += static_cast<double>(s) > cfg.voxel_size ? 1 : 0;
+  }
+  return measured > 0 &&
+         static_cast<double>(thick) >= cfg.noisy_cloud_share * static_cast<double>(measured);
+}
 
 std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vector3f>& points,
                                                   const Config& cfg) {

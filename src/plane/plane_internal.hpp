@@ -79,9 +79,10 @@ std::vector<Eigen::Vector3f> gatherPoints(const std::vector<Eigen::Vector3f>& po
 /// estimateNormals without validation; organised clouds evaluate every `stride`-th pixel in
 /// each direction and copy the normal over the block (stride 1 = every pixel). `spread`, when
 /// given, receives per point of an unorganised cloud the RMS distance of the neighbours the
-/// normal came from to their plane (empty for organised clouds).
+/// normal came from to their plane (empty for organised clouds); `noisy` as in estimateNormals.
 std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, const Config& cfg,
                                                     int stride, std::vector<float>* curvature,
-                                                    std::vector<float>* spread = nullptr);
+                                                    std::vector<float>* spread = nullptr,
+                                                    bool* noisy = nullptr);
 
 }  // namespace planesdf::detail

@@ -4,10 +4,12 @@
 #include <algorithm>
 #include <cmath>
 #include <optional>
+#include <string>
 
 #include "../numeric.hpp"
 #include "clustering.hpp"
 #include "plane_internal.hpp"
+#include "planesdf/error.hpp"
 #include "planesdf/plane.hpp"
 #include "ransac.hpp"
 
@@ -188,9 +190,10 @@ Eigen::Vector3d estimateUp(const PointCloud& cloud, const Config& cfg) {
   return n;
 }
 
-PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg) {
-  validatePlaneConfig(cfg);
-  world.validate("point cloud");
+namespace {
+
+PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
+                                     const std::vector<Eigen::Vector3f>& normals) {
   PlaneSegmentation out;
   out.labels.assign(world.size(), -1);
   out.up = cfg.up.normalized();
@@ -198,9 +201,6 @@ PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg) {
   if (valid.size() < 3) return out;
   if (cfg.up_auto) out.up = estimateUp(world, cfg);
   const int threads = detail::ompThreads(cfg);
-  // Organised: normals on every other pixel (the window spans >= 5 pixels).
-  const std::vector<Eigen::Vector3f> normals =
-      detail::estimateNormalsStrided(world, cfg, kNormalStride, nullptr);
   const std::vector<Candidate> candidates =
       planeCandidates(world.points, normals, out.up, cfg, threads);
   const std::optional<Eigen::Vector3d> sensor = sensorOrigin(world);
@@ -251,6 +251,26 @@ PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg) {
     out.planes.push_back(std::move(found[k].plane));
   }
   return out;
+}
+
+}  // namespace
+
+PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg) {
+  validatePlaneConfig(cfg);
+  world.validate("point cloud");
+  // Organised: normals on every other pixel (the window spans >= 5 pixels).
+  return segmentWithNormals(world, cfg,
+                            detail::estimateNormalsStrided(world, cfg, kNormalStride, nullptr));
+}
+
+PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg,
+                                const std::vector<Eigen::Vector3f>& normals) {
+  validatePlaneConfig(cfg);
+  world.validate("point cloud");
+  if (normals.size() != world.size())
+    throw Error("point cloud", "segmentPlanes: " + std::to_string(normals.size()) +
+                                   " normals for " + std::to_string(world.size()) + " points");
+  return segmentWithNormals(world, cfg, normals);
 }
 
 std::vector<Plane> detectPlanes(const PointCloud& world, const Config& cfg) {

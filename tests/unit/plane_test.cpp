@@ -290,14 +290,40 @@ TEST(PlaneNormals, AStepKeepsItsFineScaleNormalsWhereItsNeighboursAreSmooth) {
     return static_cast<double>(radial) / static_cast<double>(side.size());
   };
   Config cfg;
+  cfg.normal_knn_max = cfg.normal_knn;
   const double single = radialShare(cfg);
   cfg.normal_knn_max = 16 * cfg.normal_knn;
-  cfg.normal_rough_share = 0.0;  // the flattest scale wherever the fine one is rough
+  const double thin = radialShare(cfg);  // not a noisy cloud: one scale
+  cfg.noisy_cloud_share = 0.0;           // taken as noisy
+  cfg.normal_rough_share = 0.0;          // the flattest scale wherever the fine one is rough
   const double flattest = radialShare(cfg);
   cfg.normal_rough_share = 0.5;
   const double multi = radialShare(cfg);
+  EXPECT_NEAR(thin, single, 1e-9);
   EXPECT_GT(multi, single - 0.05);
   EXPECT_LT(flattest, single - 0.2);
+}
+
+TEST(PlaneNormals, OnlyACloudWithLayersThickerThanAVoxelIsNoisy) {
+  // 1 m x 1 m at 30k points / m^2: 1 mm of noise is a reconstruction's surface, 1.5 cm a raw
+  // accumulated wall at 3 m. The 20 nearest neighbours of the thick layer lie ~8 mm (RMS) from
+  // their plane, more than the 7 mm voxel, for most points; those of the thin one ~1 mm.
+  std::mt19937 rng(12);
+  const auto noisy = [&](double sigma) {
+    PointCloud cloud;
+    cloud.points = samplePlane({0, 0, 1}, 0.0, 0.5, 30000, sigma, rng);
+    cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+    cloud.height = 1;
+    std::vector<float> spread;
+    bool is_noisy = false;
+    estimateNormals(cloud, Config{}, nullptr, &spread, &is_noisy);
+    EXPECT_EQ(is_noisy, isNoisyCloud(spread, Config{}));
+    return is_noisy;
+  };
+  EXPECT_FALSE(noisy(0.001));
+  EXPECT_TRUE(noisy(0.015));
+  // Organised clouds are never noisy in this sense (no spread).
+  EXPECT_FALSE(isNoisyCloud({}, Config{}));
 }
 
 TEST(PlaneSmoothing, ProjectionCollapsesDepthNoiseAndDropsOutliers) {
