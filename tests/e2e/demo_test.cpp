@@ -119,9 +119,8 @@ TEST(Demo, RoomKeepsWallsShelfAndTableLegsOutOfTheChanges) {
   EXPECT_GE(j["f1"].get<double>(), 0.9);
 
   // The same sessions as whole-scene clouds without normals or viewpoints (design.md, "Unseen
-  // above", "Slivers"). The reconstruction (7 mm TSDF surface points) and its mesh's vertices
-  // read alike: today F1 0.94, M 0, W 1 each. The raw accumulated frame points carry every
-  // frame's noise: today F1 0.65, M 3 (the objects of the shelf's second board), W 6.
+  // above", "Slivers"): the reconstruction (7 mm TSDF surface points) and its mesh's vertices.
+  // Raw accumulated clouds are tested on the room suite's scenes (room_suite_test.cpp).
   for (const std::string form : {"_recon", "_mesh"}) {
     const nlohmann::json r = detectClouds(tmp, form, "_recon");
     ASSERT_FALSE(r.is_null()) << form;
@@ -129,11 +128,6 @@ TEST(Demo, RoomKeepsWallsShelfAndTableLegsOutOfTheChanges) {
     EXPECT_LE(r["wrong"].get<int>(), 2) << form;
     EXPECT_GE(r["f1"].get<double>(), 0.9) << form;
   }
-  const nlohmann::json raw = detectClouds(tmp, "", "");
-  ASSERT_FALSE(raw.is_null());
-  EXPECT_LE(raw["missed"].get<int>(), 3);
-  EXPECT_LE(raw["wrong"].get<int>(), 8);
-  EXPECT_GE(raw["f1"].get<double>(), 0.6);
 }
 
 }  // namespace
