@@ -171,10 +171,10 @@ void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads
 
 // PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max in a noisy cloud
 // (returned; isNoisyCloud at scale k). A larger neighbourhood is tried only where the smaller
-// one is not flat, and kept only where at least
-// cfg.normal_rough_share of its points are not flat at the smallest scale either: noise is a
-// property of a region, an edge or a step is a line through smooth surfaces (design.md, "Noisy
-// clouds"). `spread` receives the neighbours' RMS distance from their plane.
+// one is not flat, and kept only where at least cfg.normal_rough_share of its points are not
+// flat at the smallest scale either: noise is a property of a region, an edge or a step is a
+// line through smooth surfaces (design.md, "Noisy clouds"). `spread` receives the neighbours'
+// RMS distance from their plane.
 bool knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, int threads,
                 std::vector<Eigen::Vector3f>& normals, std::vector<float>& curvature,
                 std::vector<float>& spread) {
