@@ -34,6 +34,7 @@ const std::vector<Param>& params() {
       {"plane_merge_offset", &Config::plane_merge_offset},
       {"normal_knn", &Config::normal_knn},
       {"normal_knn_max", &Config::normal_knn_max},
+      {"normal_fit_points", &Config::normal_fit_points},
       {"noisy_cloud_share", &Config::noisy_cloud_share},
       {"normal_max_curvature", &Config::normal_max_curvature},
       {"normal_rough_share", &Config::normal_rough_share},
@@ -218,6 +219,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "noisy_cloud_share must be in [0, 1]");
   require(cfg.normal_knn_max >= cfg.normal_knn && cfg.normal_knn_max <= 4000,
           "normal_knn_max must be in [normal_knn, 4000]");
+  require(cfg.normal_fit_points >= cfg.normal_knn && cfg.normal_fit_points <= 4000,
+          "normal_fit_points must be in [normal_knn, 4000]");
   require(cfg.normal_max_curvature >= 0.0 && cfg.normal_max_curvature <= 1.0 / 3.0,
           "normal_max_curvature must be in [0, 1/3]");
   require(cfg.normal_rough_share >= 0.0 && cfg.normal_rough_share <= 1.0,

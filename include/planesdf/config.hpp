@@ -78,6 +78,10 @@ struct Config {
   /// are not flat either, the normal is taken from those, up to normal_knn_max, at the flattest
   /// scale (design.md, "Noisy clouds"). normal_knn_max = normal_knn keeps one scale.
   int normal_knn_max = 320;
+  /// Most neighbours one normal fit reads: a larger scale fits that many from a subsample of
+  /// the cloud (one point in scale / normal_fit_points) over the same extent. Lower is faster
+  /// and noisier (design.md, "Noisy clouds"); the default fits every scale on all its points.
+  int normal_fit_points = 320;
   double normal_max_curvature = 0.05;
   double normal_rough_share = 0.0;
   double vmf_lambda_deg = 10.0;  ///< DP-vMF-means cluster angle λ

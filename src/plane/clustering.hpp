@@ -43,4 +43,11 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
                                                        const std::vector<std::uint32_t>& members,
                                                        const Eigen::Matrix3d& axes, double cell);
 
+/// Points of points[members] in the core of their footprint: projected as connectedParts does,
+/// the occupied cells whose (2 radius + 1)^2 neighbourhood is occupied too. A strip narrower
+/// than about 2 radius + 1 cells (a table leg, a top's edge) has none.
+std::size_t coreSupport(const std::vector<Eigen::Vector3f>& points,
+                        const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
+                        double cell, int radius);
+
 }  // namespace planesdf::detail

@@ -127,23 +127,40 @@ struct Candidates {
 using Neighbours = std::vector<std::pair<float, std::uint32_t>>;  // (squared distance, index)
 
 // Calls fn(i, neighbours) for every valid point i for which want(i) holds, with its k nearest
-// valid points (itself included; fewer only when the cloud has fewer), in parallel over cells.
-template <typename Want, typename Fn>
-void forEachKnnWhere(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Want want,
-                     Fn fn) {
+// valid points among those for which member(i) holds (itself included when a member; fewer only
+// when there are fewer within four grid cells), in parallel over cells.
+template <typename Want, typename Member, typename Fn>
+void forEachKnnAmong(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Want want,
+                     Member member, Fn fn) {
   const std::vector<std::uint32_t> valid = detail::validIndices(points);
-  if (valid.size() < 3) return;
+  std::vector<std::uint32_t> members, indexed;
+  for (const std::uint32_t i : valid) {
+    if (member(i)) members.push_back(i);
+    if (member(i) || want(i)) indexed.push_back(i);
+  }
+  if (members.size() < 3) return;
   const int k =
-      static_cast<int>(std::min<std::size_t>(static_cast<std::size_t>(knn), valid.size()));
-  const detail::KnnGrid grid(points, valid, detail::KnnGrid::suggestCell(points, valid, k));
-  const auto reach2 = static_cast<float>(grid.cell() * grid.cell());
+      static_cast<int>(std::min<std::size_t>(static_cast<std::size_t>(knn), members.size()));
+  const detail::KnnGrid grid(points, indexed, detail::KnnGrid::suggestCell(points, members, k));
   const auto cells = static_cast<long long>(grid.cellCount());
   const float* xyz = detail::xyzData(points);
+  const bool all = members.size() == indexed.size();
 #pragma omp parallel num_threads(threads)
   {
     Candidates cand;
     std::vector<std::uint32_t> scratch;
     std::vector<std::pair<float, std::uint32_t>> nb;
+    // The members within `radius` cells of `cell`, loaded; any point within radius * cell of a
+    // point of `cell` is among them.
+    const auto gather = [&](std::size_t cell, int radius) {
+      cand.index.clear();
+      grid.gatherAround(cell, radius, cand.index);
+      if (!all)
+        cand.index.erase(std::remove_if(cand.index.begin(), cand.index.end(),
+                                        [&](std::uint32_t j) { return !member(j); }),
+                         cand.index.end());
+      cand.load(points);
+    };
 #pragma omp for schedule(dynamic, 32)
     for (long long c = 0; c < cells; ++c) {
       const auto cell = static_cast<std::size_t>(c);
@@ -151,22 +168,45 @@ void forEachKnnWhere(const std::vector<Eigen::Vector3f>& points, int knn, int th
       for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell) && !any; ++it)
         any = want(*it);
       if (!any) continue;
-      cand.index.clear();
-      grid.gatherAround(cell, 1, cand.index);
-      cand.load(points);
+      gather(cell, 1);
+      bool wide = false;  // cand holds a wider gather than the 3x3x3 block
       for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell); ++it) {
         if (!want(*it)) continue;
-        if (!cand.nearest(xyz + 3 * *it, k, reach2, nb)) grid.knn(*it, cell, k, 4, nb, scratch);
+        const float* q = xyz + 3 * *it;
+        const auto reach2 = [&](int r) {
+          return static_cast<float>(r * r * grid.cell() * grid.cell());
+        };
+        bool found = cand.nearest(q, k, reach2(wide ? 4 : 1), nb);
+        if (!found && !wide && all) {
+          grid.knn(*it, cell, k, 4, nb, scratch);
+        } else if (!found && !wide) {
+          gather(cell, 4);
+          wide = true;
+          cand.nearest(q, k, reach2(4), nb);
+        }
         if (nb.size() >= 3) fn(*it, nb);
       }
     }
   }
 }
 
+template <typename Want, typename Fn>
+void forEachKnnWhere(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Want want,
+                     Fn fn) {
+  forEachKnnAmong(
+      points, knn, threads, want, [](std::uint32_t) { return true; }, fn);
+}
+
 template <typename Fn>
 void forEachKnn(const std::vector<Eigen::Vector3f>& points, int knn, int threads, Fn fn) {
   forEachKnnWhere(
       points, knn, threads, [](std::uint32_t) { return true; }, fn);
+}
+
+// True for about one in `rate` indices, spread without pattern (a multiplicative hash), so a
+// cloud stored in scan or voxel order is thinned evenly.
+bool inSubsample(std::uint32_t i, std::uint32_t rate) {
+  return rate <= 1 || ((i * 2654435761u) >> 16) % rate == 0;
 }
 
 // PCA normals at the flattest of the scales k, 4k, 16k, ... up to k_max in a noisy cloud
@@ -189,23 +229,27 @@ bool knnNormals(const std::vector<Eigen::Vector3f>& points, const Config& cfg, i
   std::vector<std::uint8_t> rough(points.size());  // at the smallest scale
   for (std::uint32_t i = 0; i < points.size(); ++i) rough[i] = notFlat(i);
   for (int k = 4 * cfg.normal_knn; k / 4 < cfg.normal_knn_max; k *= 4) {
-    // Points a smaller scale made flat keep it.
-    forEachKnnWhere(points, std::min(k, cfg.normal_knn_max), threads, notFlat,
-                    [&](std::uint32_t i, const Neighbours& nb) {
-                      std::size_t rough_nb = 0;
-                      for (const auto& e : nb) rough_nb += rough[e.second];
-                      if (static_cast<double>(rough_nb) <
-                          cfg.normal_rough_share * static_cast<double>(nb.size()))
-                        return;
-                      Eigen::Vector3f n;
-                      float c = 0.0f, rms = 0.0f;
-                      if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms))
-                        return;
-                      if (c >= curvature[i]) return;  // NaN: no normal yet, any will do
-                      normals[i] = n;
-                      curvature[i] = c;
-                      spread[i] = rms;
-                    });
+    // A scale of more than normal_fit_points neighbours reads a subsample that holds that many
+    // in the same extent. Points a smaller scale made flat keep it.
+    const int scale = std::min(k, cfg.normal_knn_max);
+    const auto rate = static_cast<std::uint32_t>(std::max(1, scale / cfg.normal_fit_points));
+    forEachKnnAmong(
+        points, scale / static_cast<int>(rate), threads, notFlat,
+        [rate](std::uint32_t i) { return inSubsample(i, rate); },
+        [&](std::uint32_t i, const Neighbours& nb) {
+          std::size_t rough_nb = 0;
+          for (const auto& e : nb) rough_nb += rough[e.second];
+          if (static_cast<double>(rough_nb) <
+              cfg.normal_rough_share * static_cast<double>(nb.size()))
+            return;
+          Eigen::Vector3f n;
+          float c = 0.0f, rms = 0.0f;
+          if (!normalFromCovariance(neighbourCovariance(points, nb), n, c, &rms)) return;
+          if (c >= curvature[i]) return;  // NaN: no normal yet, any will do
+          normals[i] = n;
+          curvature[i] = c;
+          spread[i] = rms;
+        });
   }
   return noisy;
 }

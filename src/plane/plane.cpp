@@ -159,6 +159,7 @@ void validatePlaneConfig(const Config& c) {
   require(c.plane_min_width >= 0.0, "plane_min_width must be >= 0");
   require(c.plane_reservoir_size >= 3, "plane_reservoir_size must be >= 3");
   require(c.normal_knn >= 3, "normal_knn must be >= 3");
+  require(c.normal_fit_points >= 3, "normal_fit_points must be >= 3");
   require(c.normal_window >= 0.0, "normal_window must be >= 0");
   require(c.vmf_lambda_deg > 0.0 && c.vmf_lambda_deg < 90.0, "vmf_lambda_deg must be in (0, 90)");
   require(c.offset_split > 0.0, "offset_split must be > 0");

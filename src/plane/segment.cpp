@@ -207,6 +207,13 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
   const Eigen::Vector3d centroid = detail::centroidOf(world.points, valid);
   const double min_cos = cosDeg(2.0 * cfg.vmf_lambda_deg);
   const auto min_support = static_cast<std::size_t>(cfg.min_plane_support);
+  // Unorganised clouds: a part needs a core 2 r + 1 cells wide, about plane_min_width (a single
+  // view keeps object faces; design.md, "Shelf boards are planes, object faces are not").
+  const int core_radius =
+      !world.isOrganized() && cfg.plane_connect_cell > 0.0 && cfg.plane_min_width > 0.0
+          ? std::max(1, static_cast<int>(std::lround(
+                            0.5 * (cfg.plane_min_width / cfg.plane_connect_cell - 1.0))))
+          : 0;
   // Claim inliers candidate by candidate (largest seed first), split them into connected parts.
   std::vector<char> claimed(world.size(), 0);
   std::vector<std::vector<std::uint32_t>> parts;
@@ -225,6 +232,11 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
     }
     for (auto& part : split) {
       if (part.size() < min_support) break;  // largest first
+      // A plane is a surface at least plane_min_width wide somewhere: the face a table's legs
+      // and top edge make is not (design.md, "Planes").
+      if (core_radius > 0 && detail::coreSupport(world.points, part, planeAxes(c.normal, out.up),
+                                                 cfg.plane_connect_cell, core_radius) < min_support)
+        continue;
       for (std::uint32_t i : part) claimed[i] = 1;
       parts.push_back(std::move(part));
       part_candidate.push_back(&c);

@@ -202,6 +202,33 @@ TEST(PlaneDetect, ParallelPlanesSplitByOffsetAndCoplanarPartsByConnectivity) {
   EXPECT_NEAR(static_cast<double>(merged[1].support), 10000.0, 500.0);
 }
 
+TEST(PlaneDetect, AWholeCloudPlaneNeedsACorePlaneMinWidthWide) {
+  // Floor z = 0; in the plane x = 0.5 the end of a table (two legs 5 cm wide and 0.72 m tall,
+  // under a top edge 3 cm tall and 0.8 m long: 3,800 points in one connected part, more than
+  // min_plane_support); in the plane x = -0.5 a panel 0.3 m x 0.8 m. 5 mm spacing, 2 mm noise.
+  // The frame has no part plane_min_width (12 cm) wide, so it is no surface; the panel is.
+  std::mt19937 rng(21);
+  PointCloud cloud;
+  const Eigen::Vector3d ex = Eigen::Vector3d::UnitX(), ey = Eigen::Vector3d::UnitY(),
+                        ez = Eigen::Vector3d::UnitZ();
+  const double h = 0.005, sigma = 0.002;
+  sampleRect(cloud.points, {-1, -1, 0}, ex, 2.0, ey, 2.0, 0.01, sigma, rng);
+  for (const double y : {-0.4, 0.35})
+    sampleRect(cloud.points, {0.5, y, 0.0}, ey, 0.05, ez, 0.72, h, sigma, rng);
+  sampleRect(cloud.points, {0.5, -0.4, 0.72}, ey, 0.8, ez, 0.03, h, sigma, rng);
+  sampleRect(cloud.points, {-0.5, -0.4, 0.0}, ey, 0.8, ez, 0.3, h, sigma, rng);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  Config cfg;
+  std::vector<Plane> planes = detectPlanes(cloud, cfg);
+  EXPECT_EQ(planes.size(), 2u);
+  EXPECT_NE(findPlane(planes, {0, 0, 1}, 0.0), nullptr);
+  EXPECT_NE(findPlane(planes, {1, 0, 0}, 0.5), nullptr);   // the panel (normal toward the centroid)
+  EXPECT_EQ(findPlane(planes, {-1, 0, 0}, 0.5), nullptr);  // the frame
+  cfg.plane_min_width = 0.0;                               // no core needed: the frame is a plane
+  planes = detectPlanes(cloud, cfg);
+  EXPECT_EQ(planes.size(), 3u);
+}
+
 // --- ray-cast depth images ---------------------------------------------------------------------
 
 struct Box {

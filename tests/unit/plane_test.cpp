@@ -252,6 +252,12 @@ TEST(PlaneNormals, ANoiseLayerAsThickAsTheNeighbourhoodTakesTheFlattestScale) {
   std::vector<float> s(spread.begin(), spread.end());
   std::nth_element(s.begin(), s.begin() + s.size() / 2, s.end());
   EXPECT_NEAR(s[s.size() / 2], sigma, 0.3 * sigma);
+  // 320 neighbours' extent read as 80 of a one-in-four subsample: the tilt error doubles.
+  cfg.normal_fit_points = 80;
+  const std::vector<double> sub = errors(cfg, nullptr);
+  EXPECT_GT(sub[sub.size() / 2], 1.3 * multi[multi.size() / 2]);
+  EXPECT_LT(sub[sub.size() / 2], 3.0 * multi[multi.size() / 2]);
+  cfg.normal_fit_points = 320;
   cfg.normal_knn_max = cfg.normal_knn;  // one scale
   const std::vector<double> single = errors(cfg, nullptr);
   EXPECT_GT(single[single.size() / 2], 20.0);
