@@ -144,7 +144,8 @@ struct Config {
   /// A splatted point of a noisy cloud also marks free space up to this many times its local
   /// noise (the RMS distance of its normal's neighbours to their plane) beyond the truncation in
   /// front of it, at most two truncations more: what a ray would have carved through the noise
-  /// layer of a surface (design.md, "Noisy clouds"). 0: the truncation only.
+  /// layer of a surface (design.md, "Noisy clouds"). A plane of a noisy cloud claims the points
+  /// over it within as many times their noise. 0: the truncation only, and no layer claimed.
   double splat_noise_reach = 3.0;
   /// A point of a noisy cloud whose local noise (as above) exceeds this fraction of the
   /// truncation is not splatted: its surface is placed no better than a measurement beyond

@@ -156,9 +156,12 @@ Eigen::Vector3d estimateUp(const PointCloud& cloud, const Config& cfg);
 PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg);
 
 /// segmentPlanes with the normals of an unorganised cloud already estimated (estimateNormals,
-/// one per point), so a caller that also needs them computes them once.
+/// one per point), so a caller that also needs them computes them once. `noise`, empty or one per
+/// point (estimateNormals' `spread` of a noisy cloud): an accepted plane also claims the points
+/// over its footprint within cfg.splat_noise_reach times their noise of it, its noise layer.
 PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg,
-                                const std::vector<Eigen::Vector3f>& normals);
+                                const std::vector<Eigen::Vector3f>& normals,
+                                const std::vector<float>& noise = {});
 
 /// segmentPlanes(world, cfg).planes.
 std::vector<Plane> detectPlanes(const PointCloud& world, const Config& cfg);

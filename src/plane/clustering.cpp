@@ -312,43 +312,61 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
 
 namespace planesdf::detail {
 
-std::size_t coreSupport(const std::vector<Eigen::Vector3f>& points,
-                        const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
-                        double cell, int radius) {
-  if (members.empty()) return 0;
-  const Eigen::Vector3d u = axes.col(0), v = axes.col(1);
+int PlaneCells::cellOf(const Eigen::Vector3f& p) const {
+  const Eigen::Vector3d q = p.cast<double>();
+  const double gu = (u.dot(q) - origin.x()) / cell, gv = (v.dot(q) - origin.y()) / cell;
+  if (!(gu >= 0.0 && gv >= 0.0 && gu < nu && gv < nv)) return -1;
+  return static_cast<int>(gv) * nu + static_cast<int>(gu);
+}
+
+PlaneCells planeCells(const std::vector<Eigen::Vector3f>& points,
+                      const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
+                      double cell, int margin) {
+  PlaneCells g;
+  g.u = axes.col(0);
+  g.v = axes.col(1);
+  if (members.empty()) return g;
   std::vector<Eigen::Vector2d> uv(members.size());
   Eigen::AlignedBox2d box;
   for (std::size_t i = 0; i < members.size(); ++i) {
     const Eigen::Vector3d p = points[members[i]].cast<double>();
-    uv[i] = {u.dot(p), v.dot(p)};
+    uv[i] = {g.u.dot(p), g.v.dot(p)};
     box.extend(uv[i]);
   }
   constexpr double kMaxCells = 16.0e6;
   const Eigen::Vector2d size = box.sizes();
   const double area_cells = (size.x() / cell + 1.0) * (size.y() / cell + 1.0);
   if (area_cells > kMaxCells) cell *= std::sqrt(area_cells / kMaxCells);
-  // A margin of `radius` empty cells around the footprint: border cells are never core.
-  const int nu = static_cast<int>(size.x() / cell) + 1 + 2 * radius;
-  const int nv = static_cast<int>(size.y() / cell) + 1 + 2 * radius;
-  std::vector<int> cell_of(members.size());
-  std::vector<std::uint32_t> count(static_cast<std::size_t>(nu) * nv, 0);
+  g.cell = cell;
+  g.origin = box.min() - Eigen::Vector2d::Constant(margin * cell);
+  g.nu = static_cast<int>(size.x() / cell) + 1 + 2 * margin;
+  g.nv = static_cast<int>(size.y() / cell) + 1 + 2 * margin;
+  g.cell_of.resize(members.size());
+  g.count.assign(static_cast<std::size_t>(g.nu) * g.nv, 0);
   for (std::size_t i = 0; i < members.size(); ++i) {
-    const Eigen::Vector2d g = (uv[i] - box.min()) / cell;
-    const int cu = std::min(nu - 1 - 2 * radius, static_cast<int>(g.x())) + radius;
-    const int cv = std::min(nv - 1 - 2 * radius, static_cast<int>(g.y())) + radius;
-    cell_of[i] = cv * nu + cu;
-    ++count[static_cast<std::size_t>(cell_of[i])];
+    const Eigen::Vector2d c = (uv[i] - box.min()) / cell;
+    const int cu = std::min(g.nu - 1 - 2 * margin, static_cast<int>(c.x())) + margin;
+    const int cv = std::min(g.nv - 1 - 2 * margin, static_cast<int>(c.y())) + margin;
+    g.cell_of[i] = cv * g.nu + cu;
+    ++g.count[static_cast<std::size_t>(g.cell_of[i])];
   }
+  return g;
+}
+
+std::size_t coreSupport(const std::vector<Eigen::Vector3f>& points,
+                        const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
+                        double cell, int radius) {
+  // A margin of `radius` empty cells around the footprint: border cells are never core.
+  const PlaneCells g = planeCells(points, members, axes, cell, radius);
   std::size_t core = 0;
-  for (int cv = radius; cv < nv - radius; ++cv) {
-    for (int cu = radius; cu < nu - radius; ++cu) {
-      const std::uint32_t here = count[static_cast<std::size_t>(cv) * nu + cu];
+  for (int cv = radius; cv < g.nv - radius; ++cv) {
+    for (int cu = radius; cu < g.nu - radius; ++cu) {
+      const std::uint32_t here = g.count[static_cast<std::size_t>(cv) * g.nu + cu];
       if (here == 0) continue;
       bool full = true;
       for (int dv = -radius; dv <= radius && full; ++dv)
         for (int du = -radius; du <= radius && full; ++du)
-          full = count[static_cast<std::size_t>(cv + dv) * nu + cu + du] > 0;
+          full = g.count[static_cast<std::size_t>(cv + dv) * g.nu + cu + du] > 0;
       if (full) core += here;
     }
   }

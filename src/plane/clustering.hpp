@@ -43,6 +43,24 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
                                                        const std::vector<std::uint32_t>& members,
                                                        const Eigen::Matrix3d& axes, double cell);
 
+/// The footprint of points[members] on the plane spanned by axes.col(0/1): a grid of `cell`
+/// metres (coarsened as connectedParts does) with `margin` empty cells around it, and the number
+/// of members in each cell.
+struct PlaneCells {
+  Eigen::Vector3d u = Eigen::Vector3d::UnitX(), v = Eigen::Vector3d::UnitY();
+  Eigen::Vector2d origin = Eigen::Vector2d::Zero();  ///< (u, v) of the grid's corner
+  double cell = 1.0;
+  int nu = 0, nv = 0;
+  std::vector<std::uint32_t> count;  ///< members per cell, nu * nv
+  std::vector<int> cell_of;          ///< cell of each member
+
+  /// The cell holding p's projection, -1 outside the grid.
+  int cellOf(const Eigen::Vector3f& p) const;
+};
+PlaneCells planeCells(const std::vector<Eigen::Vector3f>& points,
+                      const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
+                      double cell, int margin);
+
 /// Points of points[members] in the core of their footprint: projected as connectedParts does,
 /// the occupied cells whose (2 radius + 1)^2 neighbourhood is occupied too. A strip narrower
 /// than about 2 radius + 1 cells (a table leg, a top's edge) has none.

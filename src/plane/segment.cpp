@@ -85,6 +85,34 @@ std::vector<std::uint32_t> claimInliers(const std::vector<Eigen::Vector3f>& poin
   return out;
 }
 
+// A noisy cloud's accepted plane also claims the rest of its noise layer: unclaimed points over
+// its footprint within `reach` times their local noise of it, normals agreeing. Left over, the
+// shell just beyond ransac_inlier_dist seeds planes a few degrees off a far wall (design.md,
+// "Noisy clouds").
+void claimNoiseLayer(const std::vector<Eigen::Vector3f>& points,
+                     const std::vector<Eigen::Vector3f>& normals, const std::vector<float>& noise,
+                     const std::vector<std::uint32_t>& valid,
+                     const std::vector<std::uint32_t>& part, const Candidate& c,
+                     const Eigen::Matrix3d& axes, double cell, double reach, double min_cos,
+                     std::vector<char>& claimed) {
+  const detail::PlaneCells footprint = detail::planeCells(points, part, axes, cell, 0);
+  const auto nx = static_cast<float>(c.normal.x()), ny = static_cast<float>(c.normal.y()),
+             nz = static_cast<float>(c.normal.z());
+  const auto d = static_cast<float>(c.offset);
+  const auto r = static_cast<float>(reach);
+  const auto mc = static_cast<float>(min_cos);
+  for (std::uint32_t i : valid) {
+    if (claimed[i] || !(noise[i] > 0.0f)) continue;
+    const Eigen::Vector3f& p = points[i];
+    if (std::abs(nx * p.x() + ny * p.y() + nz * p.z() + d) > r * noise[i]) continue;
+    const Eigen::Vector3f& q = normals[i];
+    if (detail::finite3(q.data()) && std::abs(nx * q.x() + ny * q.y() + nz * q.z()) < mc) continue;
+    const int cell_index = footprint.cellOf(p);
+    if (cell_index >= 0 && footprint.count[static_cast<std::size_t>(cell_index)] > 0)
+      claimed[i] = 1;
+  }
+}
+
 // Plane hypotheses from every normal cluster that could be horizontal or vertical.
 std::vector<Candidate> planeCandidates(const std::vector<Eigen::Vector3f>& points,
                                        const std::vector<Eigen::Vector3f>& normals,
@@ -193,7 +221,8 @@ Eigen::Vector3d estimateUp(const PointCloud& cloud, const Config& cfg) {
 namespace {
 
 PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
-                                     const std::vector<Eigen::Vector3f>& normals) {
+                                     const std::vector<Eigen::Vector3f>& normals,
+                                     const std::vector<float>& noise) {
   PlaneSegmentation out;
   out.labels.assign(world.size(), -1);
   out.up = cfg.up.normalized();
@@ -241,6 +270,9 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
               min_support)
         continue;
       for (std::uint32_t i : part) claimed[i] = 1;
+      if (!noise.empty() && cfg.splat_noise_reach > 0.0)
+        claimNoiseLayer(world.points, normals, noise, valid, part, c, planeAxes(c.normal, out.up),
+                        cfg.plane_connect_cell, cfg.splat_noise_reach, min_cos, claimed);
       parts.push_back(std::move(part));
       part_candidate.push_back(&c);
     }
@@ -275,17 +307,21 @@ PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg) {
   world.validate("point cloud");
   // Organised: normals on every other pixel (the window spans >= 5 pixels).
   return segmentWithNormals(world, cfg,
-                            detail::estimateNormalsStrided(world, cfg, kNormalStride, nullptr));
+                            detail::estimateNormalsStrided(world, cfg, kNormalStride, nullptr), {});
 }
 
 PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg,
-                                const std::vector<Eigen::Vector3f>& normals) {
+                                const std::vector<Eigen::Vector3f>& normals,
+                                const std::vector<float>& noise) {
   validatePlaneConfig(cfg);
   world.validate("point cloud");
   if (normals.size() != world.size())
     throw Error("point cloud", "segmentPlanes: " + std::to_string(normals.size()) +
                                    " normals for " + std::to_string(world.size()) + " points");
-  return segmentWithNormals(world, cfg, normals);
+  if (!noise.empty() && noise.size() != world.size())
+    throw Error("point cloud", "segmentPlanes: " + std::to_string(noise.size()) +
+                                   " noise values for " + std::to_string(world.size()) + " points");
+  return segmentWithNormals(world, cfg, normals, noise);
 }
 
 std::vector<Plane> detectPlanes(const PointCloud& world, const Config& cfg) {

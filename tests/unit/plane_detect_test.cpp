@@ -229,6 +229,42 @@ TEST(PlaneDetect, AWholeCloudPlaneNeedsACorePlaneMinWidthWide) {
   EXPECT_EQ(planes.size(), 3u);
 }
 
+TEST(PlaneDetect, ANoisyWallClaimsItsWholeNoiseLayer) {
+  // A raw far wall: the plane y = 1, 2 m x 2 m, 5 mm spacing, 2.5 cm Gaussian noise, over a
+  // clean floor. A panel 0.6 m x 0.7 m turned 15 degrees stands in front of it; its plane crosses
+  // the wall at x = 0.75. The wall's inliers (within ransac_inlier_dist, 1.5 cm) leave a shell
+  // of noise beyond; where the panel's plane crosses it, a plane. With the points' noise the
+  // wall claims its whole layer.
+  std::mt19937 rng(5);
+  PointCloud cloud;
+  const Eigen::Vector3d ex = Eigen::Vector3d::UnitX(), ey = Eigen::Vector3d::UnitY(),
+                        ez = Eigen::Vector3d::UnitZ();
+  sampleRect(cloud.points, {-1, -1, 0}, ex, 2.0, ey, 2.0, 0.01, 0.001, rng);
+  sampleRect(cloud.points, {-1, 1, 0}, ex, 2.0, ez, 2.0, 0.005, 0.025, rng);
+  const double yaw = 15.0 * kPi / 180.0;
+  const Eigen::Vector3d along(std::cos(yaw), std::sin(yaw), 0.0);
+  sampleRect(cloud.points, Eigen::Vector3d(0, 0.8, 0) - 0.3 * along, along, 0.6, ez, 0.7, 0.005,
+             0.002, rng);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  const Config cfg;
+  std::vector<float> noise;
+  bool noisy = false;
+  const std::vector<Eigen::Vector3f> normals = estimateNormals(cloud, cfg, nullptr, &noise, &noisy);
+  ASSERT_TRUE(noisy);
+  const auto offWall = [](const PlaneSegmentation& s) {  // planes through the wall, tilted
+    int n = 0;
+    for (const Plane& p : s.planes)
+      n += std::abs(p.frame_origin.y() - 1.0) < 0.1 &&
+           std::abs(p.normal.y()) < std::cos(2.0 * kPi / 180.0);
+    return n;
+  };
+  const PlaneSegmentation with = segmentPlanes(cloud, cfg, normals, noise);
+  EXPECT_EQ(with.planes.size(), 3u);
+  EXPECT_EQ(offWall(with), 0);
+  EXPECT_GE(offWall(segmentPlanes(cloud, cfg, normals)), 1);  // the shell left over
+  EXPECT_THROW(segmentPlanes(cloud, cfg, normals, std::vector<float>(3, 0.01f)), Error);
+}
+
 // --- ray-cast depth images ---------------------------------------------------------------------
 
 struct Box {
