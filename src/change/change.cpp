@@ -741,31 +741,36 @@ void mappedObjectCells(const HeightMap& hs, const ObjectMap& os, const std::vect
 
 /// True when the source objects `labels` (together smaller than `large_cells`) fit the target
 /// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
-/// off as in place: the object moved by a few cm (design.md, "Small moves"). Cells the target
-/// did not observe at a shift are not compared; a shift comparing fewer than 80 % of the cells
-/// is not a fit, and an object the target observed too little of in place is no move.
+/// off as in place (median cell mismatch), and in place more than `h_obj` off: the object moved
+/// by a few cm (design.md, "Small moves"). Cells the target did not observe at a shift are not
+/// compared; a shift comparing fewer than 80 % of the cells is not a fit, and an object the
+/// target observed too little of in place is no move.
 bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
                    const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
-                   int max_shift) {
+                   int max_shift, double h_obj) {
   std::vector<Eigen::Vector2i> src, tgt;
   mappedObjectCells(hs, os, labels, ht, T, src, tgt);
   if (src.empty() || static_cast<int>(src.size()) >= large_cells) return false;
-  constexpr float kCap = 0.05f;  // a cell's mismatch counts up to 5 cm
+  // The median cell's mismatch, capped at 5 cm: speckle and rims attached to the object do not
+  // move with it.
+  constexpr float kCap = 0.05f;
+  std::vector<float> err;
   const auto misfit = [&](int dx, int dy) {
-    double sum = 0.0;
-    std::size_t n = 0;
+    err.clear();
     for (std::size_t i = 0; i < src.size(); ++i) {
       const int x = tgt[i].x() + dx, y = tgt[i].y() + dy;
       if (!ht.inBounds(x, y) || ht.at(x, y) == kUnobserved) continue;
-      sum += std::min(kCap, std::fabs(std::max(0.0f, hs.at(src[i].x(), src[i].y())) -
-                                      std::max(0.0f, ht.at(x, y))));
-      ++n;
+      err.push_back(std::min(kCap, std::fabs(std::max(0.0f, hs.at(src[i].x(), src[i].y())) -
+                                             std::max(0.0f, ht.at(x, y)))));
     }
-    return 10 * n >= 8 * src.size() ? sum / static_cast<double>(n)
-                                    : std::numeric_limits<double>::infinity();
+    if (10 * err.size() < 8 * src.size()) return std::numeric_limits<double>::infinity();
+    const auto mid = err.begin() + static_cast<std::ptrdiff_t>(err.size() / 2);
+    std::nth_element(err.begin(), mid, err.end());
+    return static_cast<double>(*mid);
   };
   const double in_place = misfit(0, 0);
-  if (!std::isfinite(in_place)) return false;  // too little of it comparable in place
+  // Too little of it comparable in place, or in place its median cell is within h_obj: no move.
+  if (!std::isfinite(in_place) || in_place <= h_obj) return false;
   double best = in_place;
   int best_d2 = 0;
   for (int dy = -max_shift; dy <= max_shift; ++dy)
@@ -1030,7 +1035,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // its whole object fits the other map shifted by more than a rim (design.md, "Small moves").
     if (blob.partial && rim_width > 0 && !hasCore(blob, rim_width) &&
         !shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
-                       small_move_cells))
+                       small_move_cells, cfg.h_obj))
       continue;
 
     // In a splatted map, a blob must be a surface about as well supported by points as the
