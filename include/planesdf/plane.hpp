@@ -158,7 +158,8 @@ PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg);
 /// segmentPlanes with the normals of an unorganised cloud already estimated (estimateNormals,
 /// one per point), so a caller that also needs them computes them once. `noise`, empty or one per
 /// point (estimateNormals' `spread` of a noisy cloud): an accepted plane also claims the points
-/// over its footprint within cfg.splat_noise_reach times their noise of it, its noise layer.
+/// over its footprint (cfg.plane_connect_cell cells; none when 0) within cfg.splat_noise_reach
+/// times their noise of it, its noise layer.
 PlaneSegmentation segmentPlanes(const PointCloud& world, const Config& cfg,
                                 const std::vector<Eigen::Vector3f>& normals,
                                 const std::vector<float>& noise = {});

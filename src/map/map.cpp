@@ -599,11 +599,11 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
     // Without a pixel grid, supports and walls only, as in streams; a single organised view keeps
     // object faces (design.md, "Shelf boards are planes, object faces are not").
     const bool grid = cloud.isOrganized();
-    tracker_.merge(observationsOf(grid ? segmentPlanes(world, cfg_)
-                                       : segmentPlanes(world, cfg_, normals,
-                                                       noisy ? spread : std::vector<float>{})),
-                   world.points, grid ? 0.0 : cfg_.plane_min_extent,
-                   grid ? 0.0 : cfg_.plane_min_width);
+    const std::vector<float> kNoNoise;  // a clean cloud's planes claim their inliers only
+    tracker_.merge(
+        observationsOf(grid ? segmentPlanes(world, cfg_)
+                            : segmentPlanes(world, cfg_, normals, noisy ? spread : kNoNoise)),
+        world.points, grid ? 0.0 : cfg_.plane_min_extent, grid ? 0.0 : cfg_.plane_min_width);
   } else {
     tracker_.integrate(world.points, world.sensor_pose.translation());
   }

@@ -341,23 +341,18 @@ PlaneCells planeCells(const std::vector<Eigen::Vector3f>& points,
   g.origin = box.min() - Eigen::Vector2d::Constant(margin * cell);
   g.nu = static_cast<int>(size.x() / cell) + 1 + 2 * margin;
   g.nv = static_cast<int>(size.y() / cell) + 1 + 2 * margin;
-  g.cell_of.resize(members.size());
   g.count.assign(static_cast<std::size_t>(g.nu) * g.nv, 0);
-  for (std::size_t i = 0; i < members.size(); ++i) {
-    const Eigen::Vector2d c = (uv[i] - box.min()) / cell;
+  for (const Eigen::Vector2d& q : uv) {
+    const Eigen::Vector2d c = (q - box.min()) / cell;
     const int cu = std::min(g.nu - 1 - 2 * margin, static_cast<int>(c.x())) + margin;
     const int cv = std::min(g.nv - 1 - 2 * margin, static_cast<int>(c.y())) + margin;
-    g.cell_of[i] = cv * g.nu + cu;
-    ++g.count[static_cast<std::size_t>(g.cell_of[i])];
+    ++g.count[static_cast<std::size_t>(cv) * g.nu + cu];
   }
   return g;
 }
 
-std::size_t coreSupport(const std::vector<Eigen::Vector3f>& points,
-                        const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
-                        double cell, int radius) {
-  // A margin of `radius` empty cells around the footprint: border cells are never core.
-  const PlaneCells g = planeCells(points, members, axes, cell, radius);
+std::size_t coreSupport(const PlaneCells& g, int radius) {
+  // The margin of at least `radius` empty cells around the footprint: border cells are never core.
   std::size_t core = 0;
   for (int cv = radius; cv < g.nv - radius; ++cv) {
     for (int cu = radius; cu < g.nu - radius; ++cu) {

@@ -52,7 +52,6 @@ struct PlaneCells {
   double cell = 1.0;
   int nu = 0, nv = 0;
   std::vector<std::uint32_t> count;  ///< members per cell, nu * nv
-  std::vector<int> cell_of;          ///< cell of each member
 
   /// The cell holding p's projection, -1 outside the grid.
   int cellOf(const Eigen::Vector3f& p) const;
@@ -61,11 +60,9 @@ PlaneCells planeCells(const std::vector<Eigen::Vector3f>& points,
                       const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
                       double cell, int margin);
 
-/// Points of points[members] in the core of their footprint: projected as connectedParts does,
-/// the occupied cells whose (2 radius + 1)^2 neighbourhood is occupied too. A strip narrower
-/// than about 2 radius + 1 cells (a table leg, a top's edge) has none.
-std::size_t coreSupport(const std::vector<Eigen::Vector3f>& points,
-                        const std::vector<std::uint32_t>& members, const Eigen::Matrix3d& axes,
-                        double cell, int radius);
+/// Members in the core of a footprint (planeCells with a margin of at least `radius`): the
+/// occupied cells whose (2 radius + 1)^2 neighbourhood is occupied too. A strip narrower than
+/// about 2 radius + 1 cells (a table leg, a top's edge) has none.
+std::size_t coreSupport(const PlaneCells& cells, int radius);
 
 }  // namespace planesdf::detail

@@ -91,11 +91,8 @@ std::vector<std::uint32_t> claimInliers(const std::vector<Eigen::Vector3f>& poin
 // "Noisy clouds").
 void claimNoiseLayer(const std::vector<Eigen::Vector3f>& points,
                      const std::vector<Eigen::Vector3f>& normals, const std::vector<float>& noise,
-                     const std::vector<std::uint32_t>& valid,
-                     const std::vector<std::uint32_t>& part, const Candidate& c,
-                     const Eigen::Matrix3d& axes, double cell, double reach, double min_cos,
-                     std::vector<char>& claimed) {
-  const detail::PlaneCells footprint = detail::planeCells(points, part, axes, cell, 0);
+                     const std::vector<std::uint32_t>& valid, const detail::PlaneCells& footprint,
+                     const Candidate& c, double reach, double min_cos, std::vector<char>& claimed) {
   const auto nx = static_cast<float>(c.normal.x()), ny = static_cast<float>(c.normal.y()),
              nz = static_cast<float>(c.normal.z());
   const auto d = static_cast<float>(c.offset);
@@ -243,36 +240,39 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
           ? std::max(1, static_cast<int>(std::lround(
                             0.5 * (cfg.plane_min_width / cfg.plane_connect_cell - 1.0))))
           : 0;
+  // A noisy cloud's planes claim their noise layer over their footprint (needs the cell grid).
+  const bool claim_layer =
+      !noise.empty() && cfg.splat_noise_reach > 0.0 && cfg.plane_connect_cell > 0.0;
   // Claim inliers candidate by candidate (largest seed first), split them into connected parts.
   std::vector<char> claimed(world.size(), 0);
   std::vector<std::vector<std::uint32_t>> parts;
   std::vector<const Candidate*> part_candidate;
   for (const Candidate& c : candidates) {
     if (!classifyOrientation(c.normal, out.up, cfg.orientation_tolerance_deg)) continue;
+    const Eigen::Matrix3d axes = planeAxes(c.normal, out.up);
     std::vector<std::uint32_t> inliers =
         claimInliers(world.points, normals, valid, claimed, c, cfg.ransac_inlier_dist, min_cos);
     if (inliers.size() < min_support) continue;
     std::vector<std::vector<std::uint32_t>> split;
     if (cfg.plane_connect_cell > 0.0) {
-      split = detail::connectedParts(world.points, inliers, planeAxes(c.normal, out.up),
-                                     cfg.plane_connect_cell);
+      split = detail::connectedParts(world.points, inliers, axes, cfg.plane_connect_cell);
     } else {
       split.push_back(std::move(inliers));
     }
     for (auto& part : split) {
       if (part.size() < min_support) break;  // largest first
+      // Its footprint (with the core's margin), for the core rule and the noise layer's claim.
+      detail::PlaneCells cells;
+      if (core_radius > 0 || claim_layer)
+        cells = detail::planeCells(world.points, part, axes, cfg.plane_connect_cell, core_radius);
       // A plane is a surface at least plane_min_width wide: half of min_plane_support lies in
       // its core (a 0.9 x 0.3 m board's core holds 57 % of its points); the face a table's legs
       // and top edge make has none (design.md, "Shelf boards are planes, object faces are not").
-      if (core_radius > 0 &&
-          2 * detail::coreSupport(world.points, part, planeAxes(c.normal, out.up),
-                                  cfg.plane_connect_cell, core_radius) <
-              min_support)
-        continue;
+      if (core_radius > 0 && 2 * detail::coreSupport(cells, core_radius) < min_support) continue;
       for (std::uint32_t i : part) claimed[i] = 1;
-      if (!noise.empty() && cfg.splat_noise_reach > 0.0)
-        claimNoiseLayer(world.points, normals, noise, valid, part, c, planeAxes(c.normal, out.up),
-                        cfg.plane_connect_cell, cfg.splat_noise_reach, min_cos, claimed);
+      if (claim_layer)
+        claimNoiseLayer(world.points, normals, noise, valid, cells, c, cfg.splat_noise_reach,
+                        min_cos, claimed);
       parts.push_back(std::move(part));
       part_candidate.push_back(&c);
     }
