@@ -249,6 +249,9 @@ struct CandidateChange {
   ChangeRegion target_object;
   /// sameInPlace(...).same(): the target has an object of its shape in its place.
   bool same_in_place = false;
+  /// Its object moved by a few cm (design.md, "Small moves"): the region is the whole object and
+  /// target_object the objects standing on its footprint now.
+  bool small_move = false;
 };
 
 /// Compares source plane `src` with target plane `tgt` of a registered pair and returns the

@@ -739,20 +739,54 @@ void mappedObjectCells(const HeightMap& hs, const ObjectMap& os, const std::vect
   }
 }
 
+/// The cells of the objects `labels` of `os` that are not in `cells`, raster order per object.
+std::vector<Eigen::Vector2i> objectCellsOutside(const ObjectMap& os, const std::vector<int>& labels,
+                                                const std::vector<Eigen::Vector2i>& cells) {
+  std::set<std::pair<int, int>> taken;
+  for (const Eigen::Vector2i& c : cells) taken.emplace(c.x(), c.y());
+  std::vector<Eigen::Vector2i> out;
+  for (const int label : labels) {
+    const ObjectInfo& o = os.object(label);
+    for (int y = o.bbox_min.y(); y <= o.bbox_max.y(); ++y)
+      for (int x = o.bbox_min.x(); x <= o.bbox_max.x(); ++x)
+        if (os.at(x, y) == label && taken.count({x, y}) == 0) out.emplace_back(x, y);
+  }
+  return out;
+}
+
 /// True when the source objects `labels` (together smaller than `large_cells`) fit the target
 /// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
-/// off as in place (median cell mismatch), and in place more than `h_obj` off: the object moved
-/// by a few cm (design.md, "Small moves"). Cells the target did not observe at a shift are not
-/// compared; a shift comparing fewer than 80 % of the cells is not a fit, and an object the
-/// target observed too little of in place is no move.
+/// off as in place, and in place more than `h_obj` off: the object moved by a few cm (design.md,
+/// "Small moves"). "Off" is the 80th percentile of the mismatch of the objects' interior cells
+/// (all four neighbours on them). Cells the target did not observe at a shift are not compared;
+/// a shift comparing fewer than 80 % of the cells is not a fit, and an object the target
+/// observed too little of in place is no move.
 bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
                    const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
                    int max_shift, double h_obj) {
   std::vector<Eigen::Vector2i> src, tgt;
   mappedObjectCells(hs, os, labels, ht, T, src, tgt);
   if (src.empty() || static_cast<int>(src.size()) >= large_cells) return false;
-  // The median cell's mismatch, capped at 5 cm: speckle and rims attached to the object do not
-  // move with it.
+  // Interior cells only: speckle and the outer ring of rim attached to an object do not move
+  // with it.
+  const auto onObjects = [&](int x, int y) {
+    return hs.inBounds(x, y) &&
+           std::find(labels.begin(), labels.end(), os.at(x, y)) != labels.end();
+  };
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < src.size(); ++i) {
+    const int x = src[i].x(), y = src[i].y();
+    if (!onObjects(x - 1, y) || !onObjects(x + 1, y) || !onObjects(x, y - 1) ||
+        !onObjects(x, y + 1))
+      continue;
+    src[n] = src[i];
+    tgt[n++] = tgt[i];
+  }
+  src.resize(n);
+  tgt.resize(n);
+  if (src.empty()) return false;
+  // A move by part of an object's size leaves most of its footprint on itself: the mismatch
+  // that a fifth of the cells exceed, capped at 5 cm.
   constexpr float kCap = 0.05f;
   std::vector<float> err;
   const auto misfit = [&](int dx, int dy) {
@@ -764,12 +798,12 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
                                              std::max(0.0f, ht.at(x, y)))));
     }
     if (10 * err.size() < 8 * src.size()) return std::numeric_limits<double>::infinity();
-    const auto mid = err.begin() + static_cast<std::ptrdiff_t>(err.size() / 2);
-    std::nth_element(err.begin(), mid, err.end());
-    return static_cast<double>(*mid);
+    const auto q = err.begin() + static_cast<std::ptrdiff_t>(err.size() * 4 / 5);
+    std::nth_element(err.begin(), q, err.end());
+    return static_cast<double>(*q);
   };
   const double in_place = misfit(0, 0);
-  // Too little of it comparable in place, or in place its median cell is within h_obj: no move.
+  // Too little of it comparable in place, or in place within h_obj: no move.
   if (!std::isfinite(in_place) || in_place <= h_obj) return false;
   double best = in_place;
   int best_d2 = 0;
@@ -940,6 +974,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     float lo, hi;
   };
   std::vector<OwnedCell> owned;
+  std::set<int> moved_labels;  // source objects a small move already reported whole
   // Where the other map is flat, a column's points are a change only above that flat surface's
   // own height: a shelf's back panel a centimetre in front of the wall is in both (design.md,
   // "Event points").
@@ -1031,12 +1066,21 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     if ((blob.partial || blob.area < cfg.min_change_cells) &&
         val.verdict != BlobValidation::Verdict::Changed)
       continue;
-    // In a splatted map, a sliver no wider than a rim is a rim (design.md, "Slivers"), unless
-    // its whole object fits the other map shifted by more than a rim (design.md, "Small moves").
-    if (blob.partial && rim_width > 0 && !hasCore(blob, rim_width) &&
-        !shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
-                       small_move_cells, cfg.h_obj))
-      continue;
+    // In a splatted map, a sliver whose whole object fits the other map shifted by more than a
+    // rim is a small move of that object (design.md, "Small moves"); otherwise a sliver no wider
+    // than a rim is a rim (design.md, "Slivers").
+    if (blob.partial && rim_width > 0) {
+      if (shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
+                        small_move_cells, cfg.h_obj)) {
+        // Another crescent of an object already reported whole.
+        if (std::any_of(blob.object_labels.begin(), blob.object_labels.end(),
+                        [&](int l) { return moved_labels.count(l) > 0; }))
+          continue;
+        cand.small_move = true;
+      } else if (!hasCore(blob, rim_width)) {
+        continue;
+      }
+    }
 
     // In a splatted map, a blob must be a surface about as well supported by points as the
     // surfaces around it (design.md, "Thin support").
@@ -1045,9 +1089,26 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       if (d.around > 0.0 && d.blob < cfg.thin_support_ratio * d.around) continue;
     }
 
+    // A small move reports its whole object, from where it stood to where it stands now.
+    if (cand.small_move) {
+      moved_labels.insert(blob.object_labels.begin(), blob.object_labels.end());
+      for (const Eigen::Vector2i& c : objectCellsOutside(os, blob.object_labels, blob.cells)) {
+        const float h = hs.at(c.x(), c.y());
+        if (!(h > cfg.h_obj)) continue;
+        reg.columns.emplace_back(hs.i0 + c.x(), hs.j0 + c.y());
+        columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo_flat - vs,
+                     static_cast<double>(h) + trunc, cfg.w_min, voxels);
+        ranges.push_back(
+            {c.x(), c.y(), -1, static_cast<float>(pointFloor(c)), h + static_cast<float>(vs)});
+        r.validated.set(c.x(), c.y());
+      }
+      target_labels.clear();
+      landed_cells.clear();
+    }
     // A sliver of an object whose loss has 3D evidence, with another object standing inside the
     // old footprint now: that object replaced it (design.md, "Replaced inside the footprint").
-    if (target_labels.empty() && blob.partial && val.verdict == BlobValidation::Verdict::Changed) {
+    if (target_labels.empty() && blob.partial &&
+        (cand.small_move || val.verdict == BlobValidation::Verdict::Changed)) {
       std::vector<std::size_t> covered;
       target_labels =
           objectsInFootprint(hs, os, blob.object_labels, ht, ot, T, large_cells, &covered);
@@ -1392,8 +1453,27 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     }
     if (e.current.empty()) continue;
     r_used[i] = true;
-    e.type = ChangeType::Replaced;
+    e.type = r.small_move ? ChangeType::Moved : ChangeType::Replaced;
     e.reference = std::move(r.region);
+    events.push_back(std::move(e));
+  }
+
+  // A small move found only from the current side: the object it was in the reference, with
+  // any removed candidate on it.
+  for (std::size_t j = 0; j < added.size(); ++j) {
+    CandidateChange& a = added[j];
+    if (a_used[j] || !a.small_move || a.target_object.empty()) continue;
+    a_used[j] = true;
+    ChangeEvent e;
+    e.type = ChangeType::Moved;
+    e.reference = std::move(a.target_object);
+    for (std::size_t i = 0; i < removed.size(); ++i) {
+      if (r_used[i] || removed[i].region.plane_id != a.target_plane_id) continue;
+      if (!columnsOverlap(e.reference.columns, removed[i].region.columns)) continue;
+      r_used[i] = true;
+      mergePoints(e.reference.points, removed[i].region.points);
+    }
+    e.current = std::move(a.region);
     events.push_back(std::move(e));
   }
 

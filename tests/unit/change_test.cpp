@@ -453,6 +453,47 @@ TEST(AssembleEvents, ANewObjectWiderThanTheOldOneIsTheReplacementNotAnotherEvent
   EXPECT_EQ(e[0].current.points.size(), 2u);  // the object's, and the ring's it did not hold
 }
 
+TEST(AssembleEvents, ASmallMoveFoundFromEitherSideIsOneMovedEvent) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // An object moved by a few cm: the whole old object (columns 0-3) with the objects on its
+  // footprint now (columns 1-4) as target_object, and the other direction's crescent (column 4).
+  const auto moved = [](int first) {
+    CandidateChange c = candidate(V::Changed, false);
+    c.small_move = true;
+    c.region.columns.clear();
+    for (int x = first; x < first + 4; ++x) c.region.columns.emplace_back(x, 0);
+    c.target_columns = c.region.columns;
+    c.target_object_overlap = 1.0;
+    c.target_object.plane_id = 0;
+    for (int x = first + 1; x < first + 5; ++x) c.target_object.columns.emplace_back(x, 0);
+    c.target_object.points = {Eigen::Vector3f(0.01f * static_cast<float>(first + 1), 0.0f, 0.1f)};
+    return c;
+  };
+  CandidateChange crescent = candidate(V::Unknown, false);
+  crescent.region.columns = {Eigen::Vector2i(4, 0)};
+  crescent.region.points = {Eigen::Vector3f(0.04f, 0.0f, 0.1f)};
+  for (const bool from_reference : {true, false}) {
+    SCOPED_TRACE(from_reference);
+    const auto e = from_reference ? assembleEvents({moved(0)}, {crescent}, cfg)
+                                  : assembleEvents({crescent}, {moved(0)}, cfg);
+    ASSERT_EQ(e.size(), 1u);
+    EXPECT_EQ(e[0].type, ChangeType::Moved);
+    // The side it was found from is its region; the other its target objects with the crescent.
+    const ChangeRegion& found = from_reference ? e[0].reference : e[0].current;
+    const ChangeRegion& other = from_reference ? e[0].current : e[0].reference;
+    EXPECT_EQ(found.columns.size(), 4u);
+    EXPECT_EQ(other.columns.size(), 4u);
+    EXPECT_EQ(other.points.size(), 2u);
+  }
+  // The same sliver without the move is a replacement.
+  CandidateChange replaced = moved(0);
+  replaced.small_move = false;
+  const auto r = assembleEvents({replaced}, {crescent}, cfg);
+  ASSERT_EQ(r.size(), 1u);
+  EXPECT_EQ(r[0].type, ChangeType::Replaced);
+}
+
 TEST(AssembleEvents, TwoSliversOfAnObjectReplacedByOneNewObjectAreOneEvent) {
   using V = BlobValidation::Verdict;
   const Config cfg;
