@@ -1107,8 +1107,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     }
     // A sliver of an object whose loss has 3D evidence, with another object standing inside the
     // old footprint now: that object replaced it (design.md, "Replaced inside the footprint").
-    if (target_labels.empty() && blob.partial &&
-        (cand.small_move || val.verdict == BlobValidation::Verdict::Changed)) {
+    // (A small move is such a sliver: a partial blob gets here only with a Changed verdict.)
+    if (target_labels.empty() && blob.partial && val.verdict == BlobValidation::Verdict::Changed) {
       std::vector<std::size_t> covered;
       target_labels =
           objectsInFootprint(hs, os, blob.object_labels, ht, ot, T, large_cells, &covered);
@@ -1317,6 +1317,18 @@ void mergePoints(std::vector<Eigen::Vector3f>& into, const std::vector<Eigen::Ve
     if (!std::binary_search(sorted.begin(), sorted.end(), p, less)) into.push_back(p);
 }
 
+/// The unused candidates of plane `plane_id` on `region`'s columns are part of it: marked used,
+/// their points merged into it.
+void absorbCandidates(const std::vector<CandidateChange>& candidates, std::vector<bool>& used,
+                      int plane_id, ChangeRegion& region) {
+  for (std::size_t k = 0; k < candidates.size(); ++k) {
+    if (used[k] || candidates[k].region.plane_id != plane_id) continue;
+    if (!columnsOverlap(region.columns, candidates[k].region.columns)) continue;
+    used[k] = true;
+    mergePoints(region.points, candidates[k].region.points);
+  }
+}
+
 /// The same object in the bands of two planes (design.md, "One object, one event"): of the
 /// candidates of one direction on different planes sharing at least half of the smaller one's
 /// point cells, the one with the stronger 3D evidence (Changed before Unknown, then more scored
@@ -1444,12 +1456,7 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       e.current = std::move(r.target_object);
       // An added candidate on those objects (the part of a wider new object around the old
       // footprint) is this replacement, not another event (design.md, "One object, one event").
-      for (std::size_t j = 0; j < added.size(); ++j) {
-        if (a_used[j] || added[j].region.plane_id != r.target_plane_id) continue;
-        if (!columnsOverlap(e.current.columns, added[j].region.columns)) continue;
-        a_used[j] = true;
-        mergePoints(e.current.points, added[j].region.points);
-      }
+      absorbCandidates(added, a_used, r.target_plane_id, e.current);
     }
     if (e.current.empty()) continue;
     r_used[i] = true;
@@ -1467,12 +1474,7 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     ChangeEvent e;
     e.type = ChangeType::Moved;
     e.reference = std::move(a.target_object);
-    for (std::size_t i = 0; i < removed.size(); ++i) {
-      if (r_used[i] || removed[i].region.plane_id != a.target_plane_id) continue;
-      if (!columnsOverlap(e.reference.columns, removed[i].region.columns)) continue;
-      r_used[i] = true;
-      mergePoints(e.reference.points, removed[i].region.points);
-    }
+    absorbCandidates(removed, r_used, a.target_plane_id, e.reference);
     e.current = std::move(a.region);
     events.push_back(std::move(e));
   }
