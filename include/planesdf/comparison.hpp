@@ -94,15 +94,16 @@ int largeObjectCells(const Config& cfg, double cell_size);
 /// to the object-map component they lie on (one each: distinct objects are never 8-adjacent);
 /// the components on one object make one blob. An object that every component on it touches
 /// only a sliver of (sliverOf with `min_overlap` and `large_cells`) is not grown into: each such
-/// component is a blob of its own cells (Blob::partial). The paper selects the objects the
-/// change clusters overlap highly, and a box swapped on a shelf changes a sliver of the shelf,
-/// which is one object of the wall's plane. min_overlap = 0 always grows (DESIGN's blobs).
-/// Changed cells off any object are not blobs (in the source→target direction they are places
-/// where something appeared: the reverse run reports them). Blobs of whole objects come first,
-/// by object label, then the slivers, by component (raster order of their first cell). Throws
-/// planesdf::Error("change", ...) when the two grids differ.
+/// component is a blob of its own cells (Blob::partial), except that the slivers of an object
+/// smaller than `join_below` cells make one blob (the rims of a small object's sides). The paper
+/// selects the objects the change clusters overlap highly, and a box swapped on a shelf changes a
+/// sliver of the shelf, which is one object of the wall's plane. min_overlap = 0 always grows
+/// (DESIGN's blobs). Changed cells off any object are not blobs (in the source→target direction
+/// they are places where something appeared: the reverse run reports them). Blobs of whole objects
+/// come first, by object label, then the slivers, by component (raster order of their first cell).
+/// Throws planesdf::Error("change", ...) when the two grids differ.
 std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects,
-                               double min_overlap = 0.0, int large_cells = 0);
+                               double min_overlap = 0.0, int large_cells = 0, int join_below = 0);
 
 /// Every stage of the 2D change detection of one registered plane pair, so callers can save a
 /// picture per stage.

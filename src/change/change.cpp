@@ -757,7 +757,7 @@ std::vector<Eigen::Vector2i> objectCellsOutside(const ObjectMap& os, const std::
 /// True when the source objects `labels` (together smaller than `large_cells`) fit the target
 /// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
 /// off as in place, and in place more than `h_obj` off: the object moved by a few cm (design.md,
-/// "Small moves"). "Off" is the 80th percentile of the mismatch of the objects' interior cells
+/// "Small moves"). "Off" is the 90th percentile of the mismatch of the objects' interior cells
 /// (all four neighbours on them). Cells the target did not observe at a shift are not compared;
 /// a shift comparing fewer than 80 % of the cells is not a fit, and an object the target
 /// observed too little of in place is no move.
@@ -786,7 +786,7 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
   tgt.resize(n);
   if (src.empty()) return false;
   // A move by part of an object's size leaves most of its footprint on itself: the mismatch
-  // that a fifth of the cells exceed, capped at 5 cm.
+  // that a tenth of the cells exceed, capped at 5 cm.
   constexpr float kCap = 0.05f;
   std::vector<float> err;
   const auto misfit = [&](int dx, int dy) {
@@ -798,7 +798,7 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
                                              std::max(0.0f, ht.at(x, y)))));
     }
     if (10 * err.size() < 8 * src.size()) return std::numeric_limits<double>::infinity();
-    const auto q = err.begin() + static_cast<std::ptrdiff_t>(err.size() * 4 / 5);
+    const auto q = err.begin() + static_cast<std::ptrdiff_t>(err.size() * 9 / 10);
     std::nth_element(err.begin(), q, err.end());
     return static_cast<double>(*q);
   };
@@ -1060,18 +1060,23 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         throughBand(top_cells, top_on_top, static_cast<int>(blob.cells.size()), cfg) &&
         topFraction(ht, target_labels, target_label_cells(), band_top) >= cfg.through_band_top)
       continue;
-    // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
-    // cluster, is a change only on 3D evidence (verdict Changed): without it, its height
-    // differences are edges and rims seen from other viewpoints.
-    if ((blob.partial || blob.area < cfg.min_change_cells) &&
-        val.verdict != BlobValidation::Verdict::Changed)
-      continue;
     // In a splatted map, a sliver whose whole object fits the other map shifted by more than a
-    // rim is a small move of that object (design.md, "Small moves"); otherwise a sliver no wider
-    // than a rim is a rim (design.md, "Slivers").
+    // rim is a small move of that object (design.md, "Small moves"). A move's crescents are
+    // narrow and score few key voxels: it needs the depth-fused count of them, dissimilar.
+    const bool some_3d =
+        val.scored >= options.validation.min_scored && val.mean_similarity < cfg.delta_blob;
+    const bool shifted = blob.partial && rim_width > 0 && some_3d &&
+                         shiftedObject(hs, os, blob.object_labels, ht, T, large_cells,
+                                       rim_width + 1, small_move_cells, cfg.h_obj);
+    // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
+    // cluster, is a change only on 3D evidence (verdict Changed) or as a small move: without it,
+    // its height differences are edges and rims seen from other viewpoints.
+    if ((blob.partial || blob.area < cfg.min_change_cells) &&
+        val.verdict != BlobValidation::Verdict::Changed && !shifted)
+      continue;
+    // Otherwise a sliver no wider than a rim is a rim (design.md, "Slivers").
     if (blob.partial && rim_width > 0) {
-      if (shiftedObject(hs, os, blob.object_labels, ht, T, large_cells, rim_width + 1,
-                        small_move_cells, cfg.h_obj)) {
+      if (shifted) {
         // Another crescent of an object already reported whole.
         if (std::any_of(blob.object_labels.begin(), blob.object_labels.end(),
                         [&](int l) { return moved_labels.count(l) > 0; }))
@@ -1105,17 +1110,19 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       target_labels.clear();
       landed_cells.clear();
     }
-    // A sliver of an object whose loss has 3D evidence, with another object standing inside the
-    // old footprint now: that object replaced it (design.md, "Replaced inside the footprint").
-    // (A small move is such a sliver: a partial blob gets here only with a Changed verdict.)
-    if (target_labels.empty() && blob.partial && val.verdict == BlobValidation::Verdict::Changed) {
+    // A sliver of an object that moved a little or whose loss has 3D evidence, with objects
+    // standing inside the old footprint now: they replaced it, beside whatever the sliver's own
+    // cells land on (design.md, "Replaced inside the footprint").
+    if (blob.partial && (cand.small_move || val.verdict == BlobValidation::Verdict::Changed)) {
       std::vector<std::size_t> covered;
-      target_labels =
+      const std::map<int, int> inside =
           objectsInFootprint(hs, os, blob.object_labels, ht, ot, T, large_cells, &covered);
+      for (const auto& [label, cells] : inside)
+        target_labels[label] = std::max(target_labels[label], cells);
       landed_cells.insert(landed_cells.end(), covered.begin(), covered.end());
       // Each of those objects stands at least half inside the object this sliver is part of:
       // the replacement is on the object's footprint, whatever of it the sliver's own cells hit.
-      if (!target_labels.empty()) cand.target_object_overlap = 1.0;
+      if (!inside.empty()) cand.target_object_overlap = 1.0;
     }
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());

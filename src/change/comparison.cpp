@@ -144,7 +144,7 @@ int largeObjectCells(const Config& cfg, double cell_size) {
 }
 
 std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objects,
-                               double min_overlap, int large_cells) {
+                               double min_overlap, int large_cells, int join_below) {
   if (!cleaned.sameGeometry(src_objects.geometry()) || cleaned.cells.size() != cleaned.numCells() ||
       src_objects.labels.size() != src_objects.numCells()) {
     throw Error("change", "change mask and object map have different grids");
@@ -171,13 +171,26 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
                   min_overlap, large_cells))
       whole[static_cast<std::size_t>(l)] = 1;
   }
+  // The slivers of an object smaller than `join_below` are one blob, keyed by the first of them
+  // (design.md, "Slivers"): the rims of a small object's sides belong to one object.
+  std::vector<int> first_on(static_cast<std::size_t>(n_obj) + 1, 0);
+  std::vector<int> rep(static_cast<std::size_t>(comps.count()) + 1, 0);
+  for (int c = 1; c <= comps.count(); ++c) {
+    const int l = comp_object[static_cast<std::size_t>(c)];
+    rep[static_cast<std::size_t>(c)] = c;
+    if (whole[static_cast<std::size_t>(l)] || src_objects.object(l).area >= join_below) continue;
+    int& first = first_on[static_cast<std::size_t>(l)];
+    if (first == 0) first = c;
+    rep[static_cast<std::size_t>(c)] = first;
+  }
   // Blob keys: whole objects 1..n_obj by label, then sliver components n_obj + c by component.
   std::vector<int> blob_of(static_cast<std::size_t>(n_obj + comps.count()) + 1, -1);
   int n_blobs = 0;
   for (int l = 1; l <= n_obj; ++l)
     if (whole[static_cast<std::size_t>(l)]) blob_of[static_cast<std::size_t>(l)] = n_blobs++;
   for (int c = 1; c <= comps.count(); ++c)
-    if (!whole[static_cast<std::size_t>(comp_object[static_cast<std::size_t>(c)])])
+    if (!whole[static_cast<std::size_t>(comp_object[static_cast<std::size_t>(c)])] &&
+        rep[static_cast<std::size_t>(c)] == c)
       blob_of[static_cast<std::size_t>(n_obj + c)] = n_blobs++;
   std::vector<Blob> blobs(static_cast<std::size_t>(n_blobs));
   for (std::size_t k = 0; k < blob_of.size(); ++k) {
@@ -195,8 +208,8 @@ std::vector<Blob> changedBlobs(const Mask2D& cleaned, const ObjectMap& src_objec
       const int l = src_objects.labels[i];
       if (l <= 0 || l > n_obj) continue;
       const int key = whole[static_cast<std::size_t>(l)] ? l
-                      : comps.labels[i] > 0              ? n_obj + comps.labels[i]
-                                                         : 0;
+                      : comps.labels[i] > 0 ? n_obj + rep[static_cast<std::size_t>(comps.labels[i])]
+                                            : 0;
       if (key == 0) continue;
       Blob& b = blobs[static_cast<std::size_t>(blob_of[static_cast<std::size_t>(key)])];
       b.cells.emplace_back(x, y);
@@ -251,8 +264,10 @@ HeightChange detectHeightChange(const HeightMap& src, const HeightMap& tgt,
   checkCleaningParams(cfg);
   out.filtered = removeSmallComponents(out.raw, cfg.min_change_cells);
   out.cleaned = dilate(out.filtered, cfg.dilation_cells);
-  out.blobs = changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap,
-                           tol.any_size_slivers ? 1 : largeObjectCells(cfg, src.cell_size));
+  const int large_cells = largeObjectCells(cfg, src.cell_size);
+  out.blobs =
+      changedBlobs(out.cleaned, src_objects, cfg.blob_min_overlap,
+                   tol.any_size_slivers ? 1 : large_cells, tol.any_size_slivers ? large_cells : 0);
   out.blob_mask = Mask2D::zeros(src.geometry());
   for (const Blob& b : out.blobs) {
     for (const Eigen::Vector2i& c : b.cells) out.blob_mask.set(c.x(), c.y());

@@ -137,26 +137,75 @@ void checkPose(const Pose& pose, const char* what) {
   }
 }
 
-/// Orients splat normals of an unorganised cloud without a sensor: toward the plane's free side
-/// where the surface faces up (|n·N| >= 0.5), else away from the centroid of the in-band points
-/// within 5 cm (so sides of convex objects face outward).
-void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
-                         std::vector<Eigen::Vector3f>& normals_local) {
-  const double cell = 0.05;
+/// Points of a cloud binned into square columns of a plane grid: their count and summed height.
+class ColumnHeights {
+ public:
+  explicit ColumnHeights(double cell) : cell_(cell) {}
+  void add(const Eigen::Vector3f& p, double weight) {
+    Acc& a = cells_[key(p.x(), p.y())];
+    a.sum += weight * p.cast<double>();
+    a.weight += weight;
+    ++a.n;
+  }
   struct Acc {
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();  ///< weighted sum of the points
+    double weight = 0.0;
     int n = 0;
   };
-  std::unordered_map<std::uint64_t, Acc> cells;
-  auto key2 = [&](double u, double v) {
-    return (static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(u / cell)) + (1 << 30))
-            << 32) |
-           static_cast<std::uint64_t>(static_cast<std::int64_t>(std::floor(v / cell)) + (1 << 30));
-  };
+  /// The column holding (x, y); null when no point fell in it.
+  const Acc* at(double x, double y) const {
+    const auto it = cells_.find(key(x, y));
+    return it == cells_.end() ? nullptr : &it->second;
+  }
+  double cell() const { return cell_; }
+
+ private:
+  std::uint64_t key(double x, double y) const {
+    const auto u = static_cast<std::int64_t>(std::floor(x / cell_)) + (std::int64_t{1} << 30);
+    const auto v = static_cast<std::int64_t>(std::floor(y / cell_)) + (std::int64_t{1} << 30);
+    return static_cast<std::uint64_t>(u) << 32 | static_cast<std::uint64_t>(v);
+  }
+  double cell_;
+  std::unordered_map<std::uint64_t, Acc> cells_;
+};
+
+/// +1 when the points 1.5-3.5 cm from `p` along `dir` (horizontal, unit) stand lower on average
+/// than those as far the other way, by at least 1 cm; -1 the other way round; 0 when unclear
+/// (a side is empty, or both about as high).
+int lowerSide(const ColumnHeights& columns, const Eigen::Vector3f& p, const Eigen::Vector2f& dir) {
+  double mean[2] = {0.0, 0.0};
+  for (int side = 0; side < 2; ++side) {
+    double sum = 0.0;
+    int n = 0;
+    for (double s = 0.015; s <= 0.0351; s += columns.cell()) {
+      const double sign = side == 0 ? 1.0 : -1.0;
+      const ColumnHeights::Acc* a =
+          columns.at(p.x() + sign * s * dir.x(), p.y() + sign * s * dir.y());
+      if (a == nullptr) continue;
+      sum += a->sum.z();
+      n += a->n;
+    }
+    if (n == 0) return 0;
+    mean[side] = sum / n;
+  }
+  constexpr double kClear = 0.01;
+  if (mean[0] + kClear <= mean[1]) return 1;
+  if (mean[1] + kClear <= mean[0]) return -1;
+  return 0;
+}
+
+/// Orients splat normals of an unorganised cloud without a sensor (design.md, "Side faces face
+/// the lower side"): toward the plane's free side where the surface faces up (|n·N| >= 0.5).
+/// A side face faces the side whose nearby points stand lower (outside an object is its
+/// support, inside it its top; a ring's inner face looks into the hole); when that is unclear,
+/// away from the centroid of the points within 5-10 cm weighted by their height above the plane
+/// (the object's mass, not the floor around it).
+void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
+                         std::vector<Eigen::Vector3f>& normals_local) {
+  ColumnHeights fine(0.01), coarse(0.05);
   for (const auto& p : pts_local) {
-    auto& a = cells[key2(p.x(), p.y())];
-    a.sum += p.cast<double>();
-    ++a.n;
+    fine.add(p, 1.0);
+    coarse.add(p, std::max(0.0, static_cast<double>(p.z())) + 1e-3);
   }
   for (std::size_t i = 0; i < pts_local.size(); ++i) {
     Eigen::Vector3f& n = normals_local[i];
@@ -165,19 +214,25 @@ void orientWithoutSensor(const std::vector<Eigen::Vector3f>& pts_local,
       continue;
     }
     const Eigen::Vector3f& p = pts_local[i];
-    Acc a;
-    const auto cu = static_cast<std::int64_t>(std::floor(p.x() / cell));
-    const auto cv = static_cast<std::int64_t>(std::floor(p.y() / cell));
-    for (std::int64_t du = -1; du <= 1; ++du)
-      for (std::int64_t dv = -1; dv <= 1; ++dv) {
-        auto it = cells.find(key2((cu + du + 0.5) * cell, (cv + dv + 0.5) * cell));
-        if (it == cells.end()) continue;
-        a.sum += it->second.sum;
-        a.n += it->second.n;
+    const Eigen::Vector2f dir = n.head<2>().normalized();
+    const int lower = lowerSide(fine, p, dir);
+    if (lower != 0) {
+      if (lower < 0) n = -n;
+      continue;
+    }
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    double weight = 0.0;
+    const double c = coarse.cell();
+    for (int du = -1; du <= 1; ++du)
+      for (int dv = -1; dv <= 1; ++dv) {
+        const ColumnHeights::Acc* a = coarse.at(p.x() + du * c, p.y() + dv * c);
+        if (a == nullptr) continue;
+        sum += a->sum;
+        weight += a->weight;
       }
-    if (a.n == 0) continue;
-    const Eigen::Vector3f c = (a.sum / a.n).cast<float>();
-    Eigen::Vector2f d(p.x() - c.x(), p.y() - c.y());
+    if (weight <= 0.0) continue;
+    const Eigen::Vector3f centroid = (sum / weight).cast<float>();
+    const Eigen::Vector2f d(p.x() - centroid.x(), p.y() - centroid.y());
     if (n.head<2>().dot(d) < 0) n = -n;
   }
 }

@@ -458,15 +458,12 @@ TEST(HeightCompare, SplattedMapsKeepOnlyTheChangedSliverOfAnObjectOfAnySize) {
   splatted.any_size_slivers = true;
   const HeightChange whole_cloud =
       detectHeightChange(src, tgt, objects, Pose::Identity(), cfg, nullptr, splatted);
-  // The rim it lacks in front and the one it has behind: two slivers, less than half of it.
-  ASSERT_EQ(whole_cloud.blobs.size(), 2u);
-  int sliver_cells = 0;
-  for (const Blob& b : whole_cloud.blobs) {
-    EXPECT_TRUE(b.partial);
-    sliver_cells += b.area;
-  }
-  EXPECT_GE(sliver_cells, 42);
-  EXPECT_LT(sliver_cells, 196 / 2);
+  // The rim it lacks in front and the one it has behind: two slivers, less than half of it, of
+  // an object smaller than blob_large_area, so one blob.
+  ASSERT_EQ(whole_cloud.blobs.size(), 1u);
+  EXPECT_TRUE(whole_cloud.blobs[0].partial);
+  EXPECT_GE(whole_cloud.blobs[0].area, 42);
+  EXPECT_LT(whole_cloud.blobs[0].area, 196 / 2);
   // A box moved by its width is a change of it whole, also in a whole cloud.
   const HeightMap moved = render({{34, 20, 14, 14, 0.08f}});
   const HeightChange far =
@@ -474,6 +471,38 @@ TEST(HeightCompare, SplattedMapsKeepOnlyTheChangedSliverOfAnObjectOfAnySize) {
   ASSERT_EQ(far.blobs.size(), 1u);
   EXPECT_FALSE(far.blobs[0].partial);
   EXPECT_EQ(far.blobs[0].area, 196);
+}
+
+TEST(HeightCompare, TheSliversOfASmallObjectAreOneBlob) {
+  // Two slivers of a 20x20-cell box (4x4 cells at opposite corners, 8 % of it together) and two of
+  // a 50x30-cell shelf. Below join_below (1000 cells) the box's slivers are one blob; the shelf's
+  // stay apart, and without join_below so do the box's.
+  const HeightMap src = render({{5, 5, 50, 30, 0.05f}, {30, 40, 20, 20, 0.08f}});
+  const Config cfg;
+  const ObjectMap objects = computeObjectMap(src, cfg);
+  ASSERT_EQ(objects.numObjects(), 2);
+  const int box = objects.at(30, 40);
+  Mask2D mask = Mask2D::zeros(src.geometry());
+  for (const auto& [x0, y0] :
+       std::vector<std::pair<int, int>>{{30, 40}, {46, 56}, {8, 8}, {48, 28}})
+    for (int y = y0; y < y0 + 4; ++y)
+      for (int x = x0; x < x0 + 4; ++x) mask.set(x, y);
+  const std::vector<Blob> joined = changedBlobs(mask, objects, 0.5, 1, 1000);
+  ASSERT_EQ(joined.size(), 3u);
+  int box_blobs = 0;
+  for (const Blob& b : joined) {
+    EXPECT_TRUE(b.partial);
+    if (b.object_labels == std::vector<int>{box}) {
+      ++box_blobs;
+      EXPECT_EQ(b.area, 32);
+      EXPECT_EQ(b.bbox_min, Eigen::Vector2i(30, 40));
+      EXPECT_EQ(b.bbox_max, Eigen::Vector2i(49, 59));
+    } else {
+      EXPECT_EQ(b.area, 16);
+    }
+  }
+  EXPECT_EQ(box_blobs, 1);
+  EXPECT_EQ(changedBlobs(mask, objects, 0.5, 1).size(), 4u);
 }
 
 TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {

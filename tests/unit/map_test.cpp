@@ -519,6 +519,88 @@ TEST(Map, TheUndersideOfABoardOverTheBandIsNoObjectOnTheFloor) {
   }
 }
 
+/// A reconstruction-like cloud without a viewpoint, sampled every 5 mm: a 2 x 2 m floor at
+/// z = 0 with no points under the objects, a 20 x 20 x 10 cm box at (-0.4, 0) and a square ring
+/// 40 cm wide, 8 cm high, with a 16 cm hole at (0.4, 0): their tops and side faces.
+PointCloud boxAndRing() {
+  constexpr float s = 0.005f;
+  const auto inBox = [](float x, float y) {
+    return std::abs(x + 0.4f) < 0.1f && std::abs(y) < 0.1f;
+  };
+  const auto inRing = [](float x, float y) {
+    const float r = std::max(std::abs(x - 0.4f), std::abs(y));
+    return r < 0.2f && r > 0.08f;
+  };
+  PointCloud cloud;
+  for (int i = -200; i <= 200; ++i)
+    for (int j = -200; j <= 200; ++j) {
+      const float x = s * static_cast<float>(i), y = s * static_cast<float>(j);
+      if (inBox(x, y))
+        cloud.points.emplace_back(x, y, 0.10f);
+      else if (inRing(x, y))
+        cloud.points.emplace_back(x, y, 0.08f);
+      else
+        cloud.points.emplace_back(x, y, 0.0f);
+    }
+  // Side faces: a square of half size h centred at (cx, 0), from 0 to height z.
+  const auto sides = [&](float cx, float h, float z) {
+    for (float z0 = s; z0 < z; z0 += s)
+      for (float t = -h; t <= h + 1e-4f; t += s) {
+        cloud.points.emplace_back(cx + t, -h, z0);
+        cloud.points.emplace_back(cx + t, h, z0);
+        cloud.points.emplace_back(cx - h, t, z0);
+        cloud.points.emplace_back(cx + h, t, z0);
+      }
+  };
+  sides(-0.4f, 0.1f, 0.10f);
+  sides(0.4f, 0.2f, 0.08f);
+  sides(0.4f, 0.08f, 0.08f);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  return cloud;
+}
+
+TEST(Map, SideFacesOfACloudWithoutViewpointsFaceOutOfTheObject) {
+  // Side faces turned inward would put free space inside the object and grow its footprint by
+  // the truncation outside; facing out, the floor's height map holds each footprint to within
+  // the splat's one-cell rim, and the ring's hole stays floor.
+  const Config cfg;
+  const Map m = Map::fromCloud(boxAndRing(), cfg);
+  const PlaneSdf* floor = floorOf(m);
+  ASSERT_NE(floor, nullptr);
+  const HeightMap hm = computePlaneMaps(*floor, m.planes(), cfg).heights;
+  const double rim = hm.cell_size + 1e-6;  // one cell of splat rim
+  int box_in = 0, box_object = 0, ring_in = 0, ring_object = 0, hole_in = 0, hole_object = 0,
+      outside_object = 0;
+  for (int y = 0; y < hm.height; ++y)
+    for (int x = 0; x < hm.width; ++x) {
+      const Eigen::Vector2d uv = hm.cellCenter(x, y);
+      const Eigen::Vector3d w = floor->plane.toWorld(Eigen::Vector3d(uv.x(), uv.y(), 0.0));
+      if (std::abs(w.x()) > 0.95 || std::abs(w.y()) > 0.95) continue;
+      const bool object = hm.at(x, y) > static_cast<float>(cfg.h_obj);
+      const double box_r = std::max(std::abs(w.x() + 0.4), std::abs(w.y()));
+      const double ring_r = std::max(std::abs(w.x() - 0.4), std::abs(w.y()));
+      if (box_r < 0.1 - rim) {
+        ++box_in;
+        box_object += object;
+      } else if (ring_r < 0.2 - rim && ring_r > 0.08 + rim) {
+        ++ring_in;
+        ring_object += object;
+      } else if (ring_r < 0.08 - rim) {
+        ++hole_in;
+        hole_object += object;
+      } else if (box_r > 0.1 + rim && ring_r > 0.2 + rim) {
+        outside_object += object;
+      }
+    }
+  EXPECT_GT(box_in, 600);
+  EXPECT_EQ(box_object, box_in);
+  EXPECT_GT(ring_in, 2000);
+  EXPECT_EQ(ring_object, ring_in);
+  EXPECT_GT(hole_in, 300);
+  EXPECT_EQ(hole_object, 0);
+  EXPECT_EQ(outside_object, 0);
+}
+
 TEST(Map, BadFramesAreErrors) {
   Map m{Config{}};
   DepthFrame f;
