@@ -530,6 +530,30 @@ void appendRegion(ChangeRegion& into, const ChangeRegion& from) {
   into.shape.max_height = std::max(into.shape.max_height, from.shape.max_height);
 }
 
+/// appendRegion of what of `from` `into` does not hold yet: its other columns, voxels and
+/// points (the same object's region taken from two candidates).
+void uniteRegion(ChangeRegion& into, const ChangeRegion& from) {
+  const auto key2 = [](const Eigen::Vector2i& c) { return std::make_pair(c.x(), c.y()); };
+  const auto key3 = [](const auto& v) { return std::make_tuple(v.x(), v.y(), v.z()); };
+  std::set<std::pair<int, int>> columns;
+  std::set<std::tuple<int, int, int>> voxels;
+  std::set<std::tuple<float, float, float>> points;
+  for (const auto& c : into.columns) columns.insert(key2(c));
+  for (const auto& v : into.voxels) voxels.insert(key3(v));
+  for (const auto& p : into.points) points.insert(key3(p));
+  ChangeRegion rest = from;
+  rest.columns.clear();
+  rest.voxels.clear();
+  rest.points.clear();
+  for (const auto& c : from.columns)
+    if (columns.count(key2(c)) == 0) rest.columns.push_back(c);
+  for (const auto& v : from.voxels)
+    if (voxels.count(key3(v)) == 0) rest.voxels.push_back(v);
+  for (const auto& p : from.points)
+    if (points.count(key3(p)) == 0) rest.points.push_back(p);
+  appendRegion(into, rest);
+}
+
 }  // namespace
 
 double shapeDistance(const ShapeSignature& a, const ShapeSignature& b) {
@@ -754,19 +778,25 @@ std::vector<Eigen::Vector2i> objectCellsOutside(const ObjectMap& os, const std::
   return out;
 }
 
-/// True when the source objects `labels` (together smaller than `large_cells`) fit the target
-/// heights best shifted by at least `min_shift` cells (up to `max_shift`), at most half as far
-/// off as in place, and in place more than `h_obj` off: the object moved by a few cm (design.md,
-/// "Small moves"). "Off" is the 90th percentile of the mismatch of the objects' interior cells
-/// (all four neighbours on them). Cells the target did not observe at a shift are not compared;
-/// a shift comparing fewer than 80 % of the cells is not a fit, and an object the target
-/// observed too little of in place is no move.
-bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
-                   const HeightMap& ht, const Pose& T, int large_cells, int min_shift,
-                   int max_shift, double h_obj) {
+/// How the source objects `labels` fit the target heights, in place and at the best shift up
+/// to `max_shift` cells (design.md, "Small moves"). "Off" is the 90th percentile of the height
+/// mismatch (capped at 5 cm) of the objects' interior cells (all four neighbours on them).
+/// Cells the target did not observe at a shift are not compared; a shift comparing fewer than
+/// 80 % of the cells is infinitely off. Empty (both infinite) for objects of `large_cells` or
+/// more; the shifts are searched only when in place is more than `search_above` off.
+struct ObjectFit {
+  double in_place = std::numeric_limits<double>::infinity();
+  double best = std::numeric_limits<double>::infinity();  ///< least off over the shifts
+  int best_d2 = 0;                                        ///< squared shift of `best`, cells
+};
+
+ObjectFit fitObject(const HeightMap& hs, const ObjectMap& os, const std::vector<int>& labels,
+                    const HeightMap& ht, const Pose& T, int large_cells, int max_shift,
+                    double search_above) {
+  ObjectFit fit;
   std::vector<Eigen::Vector2i> src, tgt;
   mappedObjectCells(hs, os, labels, ht, T, src, tgt);
-  if (src.empty() || static_cast<int>(src.size()) >= large_cells) return false;
+  if (src.empty() || static_cast<int>(src.size()) >= large_cells) return fit;
   // Interior cells only: speckle and the outer ring of rim attached to an object do not move
   // with it.
   const auto onObjects = [&](int x, int y) {
@@ -784,9 +814,9 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
   }
   src.resize(n);
   tgt.resize(n);
-  if (src.empty()) return false;
+  if (src.empty()) return fit;
   // A move by part of an object's size leaves most of its footprint on itself: the mismatch
-  // that a tenth of the cells exceed, capped at 5 cm.
+  // that a tenth of the cells exceed.
   constexpr float kCap = 0.05f;
   std::vector<float> err;
   const auto misfit = [&](int dx, int dy) {
@@ -802,20 +832,24 @@ bool shiftedObject(const HeightMap& hs, const ObjectMap& os, const std::vector<i
     std::nth_element(err.begin(), q, err.end());
     return static_cast<double>(*q);
   };
-  const double in_place = misfit(0, 0);
-  // Too little of it comparable in place, or in place within h_obj: no move.
-  if (!std::isfinite(in_place) || in_place <= h_obj) return false;
-  double best = in_place;
-  int best_d2 = 0;
+  fit.in_place = fit.best = misfit(0, 0);
+  if (!std::isfinite(fit.in_place) || fit.in_place <= search_above) return fit;
   for (int dy = -max_shift; dy <= max_shift; ++dy)
     for (int dx = -max_shift; dx <= max_shift; ++dx) {
       const double m = misfit(dx, dy);
-      if (m < best) {
-        best = m;
-        best_d2 = dx * dx + dy * dy;
+      if (m < fit.best) {
+        fit.best = m;
+        fit.best_d2 = dx * dx + dy * dy;
       }
     }
-  return best_d2 >= min_shift * min_shift && best <= 0.5 * in_place;
+  return fit;
+}
+
+/// True when `fit` is a small move: in place more than `h_obj` off (and comparable), best at a
+/// shift of at least `min_shift` cells and there at most half as far off as in place.
+bool isSmallMove(const ObjectFit& fit, int min_shift, double h_obj) {
+  return std::isfinite(fit.in_place) && fit.in_place > h_obj &&
+         fit.best_d2 >= min_shift * min_shift && fit.best <= 0.5 * fit.in_place;
 }
 
 /// The target objects standing inside the footprint of the source objects `labels` (together
@@ -1066,8 +1100,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     const bool some_3d =
         val.scored >= options.validation.min_scored && val.mean_similarity < cfg.delta_blob;
     const bool shifted = blob.partial && rim_width > 0 && some_3d &&
-                         shiftedObject(hs, os, blob.object_labels, ht, T, large_cells,
-                                       rim_width + 1, small_move_cells, cfg.h_obj);
+                         isSmallMove(fitObject(hs, os, blob.object_labels, ht, T, large_cells,
+                                               small_move_cells, cfg.h_obj),
+                                     rim_width + 1, cfg.h_obj);
     // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
     // cluster, is a change only on 3D evidence (verdict Changed) or as a small move: without it,
     // its height differences are edges and rims seen from other viewpoints.
@@ -1427,15 +1462,40 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       if (d < kMovedShapeDistance) pairs.emplace_back(d, i, j);
     }
   std::sort(pairs.begin(), pairs.end());
+  // The objects a moved object stands on in the other session: in a swap, the other object
+  // where this one went (reference side) and where it came from (current side).
+  std::vector<ChangeRegion> under_reference, under_current;
+  const auto landedOn = [](CandidateChange& c, std::vector<ChangeRegion>& into) {
+    if (c.target_object_overlap >= kReplacedMinOverlap && !c.target_object.empty())
+      into.push_back(std::move(c.target_object));
+  };
   for (const auto& [d, i, j] : pairs) {
     if (r_used[i] || a_used[j]) continue;
     r_used[i] = a_used[j] = true;
+    landedOn(added[j], under_reference);
+    landedOn(removed[i], under_current);
     ChangeEvent e;
     e.type = ChangeType::Moved;
     e.reference = std::move(removed[i].region);
     e.current = std::move(added[j].region);
     events.push_back(std::move(e));
   }
+  // A swap of objects of different sizes: the smaller one's change is the ring the larger one
+  // does not cover, in both places. The larger one's move lands on it whole: its move takes
+  // those regions (design.md, "Moved and replaced").
+  const auto takeInto = [&](std::vector<ChangeRegion>& regions, ChangeRegion ChangeEvent::*side) {
+    for (const ChangeRegion& x : regions)
+      for (ChangeEvent& e : events) {
+        ChangeRegion& r = e.*side;
+        if (e.type != ChangeType::Moved || r.plane_id != x.plane_id ||
+            !columnsOverlap(r.columns, x.columns))
+          continue;
+        uniteRegion(r, x);
+        break;
+      }
+  };
+  takeInto(under_reference, &ChangeEvent::reference);
+  takeInto(under_current, &ChangeEvent::current);
 
   // Replaced: a removed object with something else standing on its footprint now.
   for (std::size_t i = 0; i < removed.size(); ++i) {

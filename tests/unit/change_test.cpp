@@ -519,6 +519,57 @@ TEST(AssembleEvents, TwoSliversOfAnObjectReplacedByOneNewObjectAreOneEvent) {
   EXPECT_EQ(e[0].current.points.size(), 1u);
 }
 
+TEST(AssembleEvents, ASwapOfObjectsOfDifferentSizesMovesBothWhole) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // A tall object L (reference columns 0-3, current 10-13) and a low one S (reference 12-14,
+  // current 2-4) swap places. L's blobs are whole and land on S; of S only the column that L
+  // does not cover changes height (14 removed, 4 added). One point per column at x = column cm.
+  const auto shape = [](int cells, double height) {
+    ShapeSignature sig;
+    sig.cells = cells;
+    sig.area = cells * 1e-4;
+    sig.max_height = height;
+    sig.volume = sig.area * height;
+    return sig;
+  };
+  const auto columns = [](int x0, int x1, ChangeRegion& r) {
+    r.plane_id = 0;
+    for (int x = x0; x <= x1; ++x) {
+      r.columns.emplace_back(x, 0);
+      r.points.emplace_back(0.01f * static_cast<float>(x), 0.0f, 0.05f);
+    }
+  };
+  const auto blob = [&](int x0, int x1, const ShapeSignature& sig) {
+    CandidateChange c = candidate(V::Changed, false);
+    c.region.columns.clear();
+    columns(x0, x1, c.region);
+    c.region.shape = sig;
+    c.target_columns = c.region.columns;
+    return c;
+  };
+  const auto landsOn = [&](CandidateChange c, int x0, int x1) {
+    c.target_object_overlap = 1.0;
+    columns(x0, x1, c.target_object);
+    return c;
+  };
+  const ShapeSignature large = shape(4, 0.10), small = shape(3, 0.05);
+  const CandidateChange l_removed = landsOn(blob(0, 3, large), 2, 4);
+  const CandidateChange l_added = landsOn(blob(10, 13, large), 12, 14);
+  // The crescents keep S's signature here so that they pair as its move.
+  const auto e =
+      assembleEvents({l_removed, blob(14, 14, small)}, {l_added, blob(4, 4, small)}, cfg);
+  ASSERT_EQ(e.size(), 2u);
+  EXPECT_EQ(e[0].type, ChangeType::Moved);
+  EXPECT_EQ(e[1].type, ChangeType::Moved);
+  const ChangeEvent& s_move = e[0].reference.shape.max_height < 0.07 ? e[0] : e[1];
+  // S whole on both sides, the crescent's column and point not repeated.
+  EXPECT_EQ(s_move.reference.columns.size(), 3u);
+  EXPECT_EQ(s_move.reference.points.size(), 3u);
+  EXPECT_EQ(s_move.current.columns.size(), 3u);
+  EXPECT_EQ(s_move.current.points.size(), 3u);
+}
+
 // ---- other planes' surfaces in a plane's maps ------------------------------------------------
 
 /// A floor whose volume holds the height field `h(x, y)` (world = floor frame, 7 mm voxels).
