@@ -65,6 +65,29 @@ TEST(RoomSuite, ShelfBoardsNearEyeHeightAndTableLegsAreNoChange) {
   }
 }
 
+// Two objects of different sizes swap places on a desk: of the smaller one only the ring the
+// larger one leaves uncovered changes height, but the larger one's moves land on it whole, and
+// both moves are reported whole (design.md, "Swaps").
+TEST(RoomSuite, ASwapOfObjectsOfDifferentSizesIsTwoWholeMoves) {
+  TempDir tmp;
+  const auto sim =
+      runCli("simulate --scene '" + sceneFile("room05_swap") + "' --out '" + tmp.file("sim") + "'");
+  ASSERT_EQ(sim.exit_code, 0) << sim.out;
+  for (const bool recon : {false, true}) {
+    SCOPED_TRACE(recon ? "reconstruction clouds" : "streams");
+    const nlohmann::json r =
+        recon ? detectAndScore(tmp, "sim/reference_recon.ply", "sim/current_recon.ply", "_recon",
+                               "recon")
+              : detectAndScore(tmp, "sim/reference", "sim/current", "", "streams");
+    ASSERT_FALSE(r.is_null());
+    EXPECT_EQ(r["wrong"].get<int>(), 0);
+    EXPECT_EQ(r["missed"].get<int>(), 0);
+    // Recall: the smaller object's ring alone leaves out most of its points.
+    EXPECT_GE(r["recall"].get<double>(), 0.9);
+    EXPECT_GE(r["f1"].get<double>(), 0.9);
+  }
+}
+
 /// Scores room pair `scene` as raw accumulated clouds: every frame's points of a session, noise
 /// included, without viewpoints.
 nlohmann::json scoreRawPair(const TempDir& tmp, const std::string& scene) {
