@@ -1480,22 +1480,45 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     e.current = std::move(added[j].region);
     events.push_back(std::move(e));
   }
-  // A swap of objects of different sizes: the smaller one's change is the ring the larger one
-  // does not cover, in both places. The larger one's move lands on it whole: its move takes
-  // those regions (design.md, "Moved and replaced").
+  // A swap (design.md, "Swaps"): each moved object lands on the other one whole, in both
+  // places. A move overlapping such a region takes it (the other object's blobs were only the
+  // ring the larger one leaves uncovered); regions no move overlaps (the other object's blobs
+  // all covered) pair by shape as the other object's move.
   const auto takeInto = [&](std::vector<ChangeRegion>& regions, ChangeRegion ChangeEvent::*side) {
-    for (const ChangeRegion& x : regions)
-      for (ChangeEvent& e : events) {
-        ChangeRegion& r = e.*side;
-        if (e.type != ChangeType::Moved || r.plane_id != x.plane_id ||
-            !columnsOverlap(r.columns, x.columns))
-          continue;
-        uniteRegion(r, x);
-        break;
+    std::vector<ChangeRegion> left;
+    for (ChangeRegion& x : regions) {
+      const auto e = std::find_if(events.begin(), events.end(), [&](const ChangeEvent& o) {
+        const ChangeRegion& r = o.*side;
+        return o.type == ChangeType::Moved && r.plane_id == x.plane_id &&
+               columnsOverlap(r.columns, x.columns);
+      });
+      if (e != events.end()) {
+        uniteRegion((*e).*side, x);
+      } else {
+        left.push_back(std::move(x));
       }
+    }
+    return left;
   };
-  takeInto(under_reference, &ChangeEvent::reference);
-  takeInto(under_current, &ChangeEvent::current);
+  std::vector<ChangeRegion> left_reference = takeInto(under_reference, &ChangeEvent::reference);
+  std::vector<ChangeRegion> left_current = takeInto(under_current, &ChangeEvent::current);
+  std::vector<std::tuple<double, std::size_t, std::size_t>> swaps;
+  for (std::size_t i = 0; i < left_reference.size(); ++i)
+    for (std::size_t j = 0; j < left_current.size(); ++j) {
+      const double d = shapeDistance(left_reference[i].shape, left_current[j].shape);
+      if (d < kMovedShapeDistance) swaps.emplace_back(d, i, j);
+    }
+  std::sort(swaps.begin(), swaps.end());
+  std::vector<char> ref_taken(left_reference.size(), 0), cur_taken(left_current.size(), 0);
+  for (const auto& [d, i, j] : swaps) {
+    if (ref_taken[i] || cur_taken[j]) continue;
+    ref_taken[i] = cur_taken[j] = 1;
+    ChangeEvent e;
+    e.type = ChangeType::Moved;
+    e.reference = std::move(left_reference[i]);
+    e.current = std::move(left_current[j]);
+    events.push_back(std::move(e));
+  }
 
   // Replaced: a removed object with something else standing on its footprint now.
   for (std::size_t i = 0; i < removed.size(); ++i) {

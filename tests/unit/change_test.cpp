@@ -568,6 +568,20 @@ TEST(AssembleEvents, ASwapOfObjectsOfDifferentSizesMovesBothWhole) {
   EXPECT_EQ(s_move.reference.points.size(), 3u);
   EXPECT_EQ(s_move.current.columns.size(), 3u);
   EXPECT_EQ(s_move.current.points.size(), 3u);
+  // L covers all of S in both places (no blob of S): what L landed on is S's move.
+  CandidateChange l_removed_shaped = l_removed, l_added_shaped = l_added;
+  l_removed_shaped.target_object.shape = l_added_shaped.target_object.shape = small;
+  const auto covered = assembleEvents({l_removed_shaped}, {l_added_shaped}, cfg);
+  ASSERT_EQ(covered.size(), 2u);
+  const ChangeEvent& s_whole =
+      covered[0].current.columns.front().x() == 2 ? covered[0] : covered[1];
+  EXPECT_EQ(s_whole.type, ChangeType::Moved);
+  EXPECT_EQ(s_whole.reference.columns.front().x(), 12);
+  EXPECT_EQ(s_whole.reference.points.size(), 3u);
+  EXPECT_EQ(s_whole.current.points.size(), 3u);
+  // Objects of other shapes under the two ends are no move.
+  l_added_shaped.target_object.shape = large;
+  EXPECT_EQ(assembleEvents({l_removed_shaped}, {l_added_shaped}, cfg).size(), 1u);
 }
 
 // ---- other planes' surfaces in a plane's maps ------------------------------------------------
