@@ -554,6 +554,30 @@ void uniteRegion(ChangeRegion& into, const ChangeRegion& from) {
   appendRegion(into, rest);
 }
 
+/// Greedy pairing by shape, best first: the pairs (i, j) of `a` and `b` (not yet `a_used` /
+/// `b_used`) whose shapes (`shape_a(i)`, `shape_b(j)`) lie within kMovedShapeDistance, each
+/// index used once; marks the paired ones used.
+template <typename ShapeA, typename ShapeB>
+std::vector<std::pair<std::size_t, std::size_t>> pairByShape(std::size_t na, std::size_t nb,
+                                                             ShapeA shape_a, ShapeB shape_b,
+                                                             std::vector<bool>& a_used,
+                                                             std::vector<bool>& b_used) {
+  std::vector<std::tuple<double, std::size_t, std::size_t>> near;
+  for (std::size_t i = 0; i < na; ++i)
+    for (std::size_t j = 0; j < nb; ++j) {
+      const double d = shapeDistance(shape_a(i), shape_b(j));
+      if (d < kMovedShapeDistance) near.emplace_back(d, i, j);
+    }
+  std::sort(near.begin(), near.end());
+  std::vector<std::pair<std::size_t, std::size_t>> out;
+  for (const auto& [d, i, j] : near) {
+    if (a_used[i] || b_used[j]) continue;
+    a_used[i] = b_used[j] = true;
+    out.emplace_back(i, j);
+  }
+  return out;
+}
+
 }  // namespace
 
 double shapeDistance(const ShapeSignature& a, const ShapeSignature& b) {
@@ -1454,14 +1478,13 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     }
   }
 
-  // Moved: greedy over the pairs with matching shapes, best first.
-  std::vector<std::tuple<double, std::size_t, std::size_t>> pairs;
-  for (std::size_t i = 0; i < removed.size(); ++i)
-    for (std::size_t j = 0; j < added.size(); ++j) {
-      const double d = shapeDistance(removed[i].region.shape, added[j].region.shape);
-      if (d < kMovedShapeDistance) pairs.emplace_back(d, i, j);
-    }
-  std::sort(pairs.begin(), pairs.end());
+  const auto addMoved = [&](ChangeRegion&& reference, ChangeRegion&& current) {
+    ChangeEvent e;
+    e.type = ChangeType::Moved;
+    e.reference = std::move(reference);
+    e.current = std::move(current);
+    events.push_back(std::move(e));
+  };
   // The objects a moved object stands on in the other session: in a swap, the other object
   // where this one went (reference side) and where it came from (current side).
   std::vector<ChangeRegion> under_reference, under_current;
@@ -1469,16 +1492,16 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     if (c.target_object_overlap >= kReplacedMinOverlap && !c.target_object.empty())
       into.push_back(std::move(c.target_object));
   };
-  for (const auto& [d, i, j] : pairs) {
-    if (r_used[i] || a_used[j]) continue;
-    r_used[i] = a_used[j] = true;
+  // Moved: greedy over the pairs with matching shapes, best first.
+  const auto movedPairs = pairByShape(
+      removed.size(), added.size(),
+      [&](std::size_t i) -> const ShapeSignature& { return removed[i].region.shape; },
+      [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_used,
+      a_used);
+  for (const auto& [i, j] : movedPairs) {
     landedOn(added[j], under_reference);
     landedOn(removed[i], under_current);
-    ChangeEvent e;
-    e.type = ChangeType::Moved;
-    e.reference = std::move(removed[i].region);
-    e.current = std::move(added[j].region);
-    events.push_back(std::move(e));
+    addMoved(std::move(removed[i].region), std::move(added[j].region));
   }
   // A swap (design.md, "Swaps"): each moved object lands on the other one whole, in both
   // places. A move overlapping such a region takes it (the other object's blobs were only the
@@ -1502,23 +1525,14 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   };
   std::vector<ChangeRegion> left_reference = takeInto(under_reference, &ChangeEvent::reference);
   std::vector<ChangeRegion> left_current = takeInto(under_current, &ChangeEvent::current);
-  std::vector<std::tuple<double, std::size_t, std::size_t>> swaps;
-  for (std::size_t i = 0; i < left_reference.size(); ++i)
-    for (std::size_t j = 0; j < left_current.size(); ++j) {
-      const double d = shapeDistance(left_reference[i].shape, left_current[j].shape);
-      if (d < kMovedShapeDistance) swaps.emplace_back(d, i, j);
-    }
-  std::sort(swaps.begin(), swaps.end());
-  std::vector<char> ref_taken(left_reference.size(), 0), cur_taken(left_current.size(), 0);
-  for (const auto& [d, i, j] : swaps) {
-    if (ref_taken[i] || cur_taken[j]) continue;
-    ref_taken[i] = cur_taken[j] = 1;
-    ChangeEvent e;
-    e.type = ChangeType::Moved;
-    e.reference = std::move(left_reference[i]);
-    e.current = std::move(left_current[j]);
-    events.push_back(std::move(e));
-  }
+  std::vector<bool> ref_taken(left_reference.size(), false), cur_taken(left_current.size(), false);
+  const auto swapPairs = pairByShape(
+      left_reference.size(), left_current.size(),
+      [&](std::size_t i) -> const ShapeSignature& { return left_reference[i].shape; },
+      [&](std::size_t j) -> const ShapeSignature& { return left_current[j].shape; }, ref_taken,
+      cur_taken);
+  for (const auto& [i, j] : swapPairs)
+    addMoved(std::move(left_reference[i]), std::move(left_current[j]));
 
   // Replaced: a removed object with something else standing on its footprint now.
   for (std::size_t i = 0; i < removed.size(); ++i) {

@@ -137,7 +137,7 @@ void checkPose(const Pose& pose, const char* what) {
   }
 }
 
-/// Points of a cloud binned into square columns of a plane grid: their count and summed height.
+/// Points of a cloud binned into square columns of a plane grid: their weighted sum and weight.
 class ColumnHeights {
  public:
   explicit ColumnHeights(double cell) : cell_(cell) {}
@@ -145,12 +145,10 @@ class ColumnHeights {
     Acc& a = cells_[key(p.x(), p.y())];
     a.sum += weight * p.cast<double>();
     a.weight += weight;
-    ++a.n;
   }
   struct Acc {
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();  ///< weighted sum of the points
     double weight = 0.0;
-    int n = 0;
   };
   /// The column holding (x, y); null when no point fell in it.
   const Acc* at(double x, double y) const {
@@ -175,18 +173,17 @@ class ColumnHeights {
 int lowerSide(const ColumnHeights& columns, const Eigen::Vector3f& p, const Eigen::Vector2f& dir) {
   double mean[2] = {0.0, 0.0};
   for (int side = 0; side < 2; ++side) {
-    double sum = 0.0;
-    int n = 0;
+    double sum = 0.0, weight = 0.0;
     for (double s = 0.015; s <= 0.0351; s += columns.cell()) {
       const double sign = side == 0 ? 1.0 : -1.0;
       const ColumnHeights::Acc* a =
           columns.at(p.x() + sign * s * dir.x(), p.y() + sign * s * dir.y());
       if (a == nullptr) continue;
       sum += a->sum.z();
-      n += a->n;
+      weight += a->weight;
     }
-    if (n == 0) return 0;
-    mean[side] = sum / n;
+    if (weight <= 0.0) return 0;
+    mean[side] = sum / weight;
   }
   constexpr double kClear = 0.01;
   if (mean[0] + kClear <= mean[1]) return 1;
