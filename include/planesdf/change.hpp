@@ -252,6 +252,12 @@ struct CandidateChange {
   /// Its object moved by a few cm (design.md, "Small moves"): the region is the whole object and
   /// target_object the objects standing on its footprint now.
   bool small_move = false;
+  /// A sliver with some 3D evidence: part of an event another candidate on its columns makes,
+  /// never an event of its own (design.md, "Supporting slivers").
+  bool supporting = false;
+  /// Its columns' points under the height of the target objects it lands on: part of the change
+  /// only when those objects changed too (design.md, "Changed objects whole").
+  std::vector<Eigen::Vector3f> covered_points;
 };
 
 /// Compares source plane `src` with target plane `tgt` of a registered pair and returns the

@@ -1030,9 +1030,11 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     int x, y;
     int owner;
     float lo, hi;
+    float covered_lo;  ///< points from here to lo stand under the other map's object
   };
   std::vector<OwnedCell> owned;
   std::set<int> moved_labels;  // source objects a small move already reported whole
+  std::set<int> whole_labels;  // source objects a candidate already took whole
   // Where the other map is flat, a column's points are a change only above that flat surface's
   // own height: a shelf's back panel a centimetre in front of the wall is in both (design.md,
   // "Event points").
@@ -1080,8 +1082,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       if (lo >= h_src) continue;  // the other map is as high here: this column did not change
       const double hi = static_cast<double>(h_src) + trunc;
       columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo - vs, hi, cfg.w_min, voxels);
-      ranges.push_back({c.x(), c.y(), -1, static_cast<float>(std::max(lo, pointFloor(c))),
-                        h_src + static_cast<float>(vs)});
+      const double floor_c = pointFloor(c);
+      ranges.push_back({c.x(), c.y(), -1, static_cast<float>(std::max(lo, floor_c)),
+                        h_src + static_cast<float>(vs), static_cast<float>(floor_c)});
     }
     cand.target_object_overlap =
         blob.cells.empty() ? 0.0 : static_cast<double>(on_target_objects) / blob.cells.size();
@@ -1130,9 +1133,16 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // A sliver of a larger object (Blob::partial), or a blob smaller than the smallest change
     // cluster, is a change only on 3D evidence (verdict Changed) or as a small move: without it,
     // its height differences are edges and rims seen from other viewpoints.
+    // A sliver with some 3D evidence and a core wider than a rim may be the part of an object
+    // that another object does not cover: it supports an event another candidate makes on its
+    // columns, never one of its own (design.md, "Supporting slivers").
+    const bool supporting = blob.partial && rim_width > 0 && some_3d && !shifted &&
+                            val.verdict != BlobValidation::Verdict::Changed &&
+                            hasCore(blob, rim_width);
     if ((blob.partial || blob.area < cfg.min_change_cells) &&
-        val.verdict != BlobValidation::Verdict::Changed && !shifted)
+        val.verdict != BlobValidation::Verdict::Changed && !shifted && !supporting)
       continue;
+    cand.supporting = supporting;
     // Otherwise a sliver no wider than a rim is a rim (design.md, "Slivers").
     if (blob.partial && rim_width > 0) {
       if (shifted) {
@@ -1153,25 +1163,35 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       if (d.around > 0.0 && d.blob < cfg.thin_support_ratio * d.around) continue;
     }
 
-    // A small move reports its whole object, from where it stood to where it stands now.
-    if (cand.small_move) {
-      moved_labels.insert(blob.object_labels.begin(), blob.object_labels.end());
+    // Its whole object's columns, from the plane up (once per object: another sliver of it joins
+    // the event that took it).
+    const auto takeWholeObject = [&] {
+      if (std::any_of(blob.object_labels.begin(), blob.object_labels.end(),
+                      [&](int l) { return whole_labels.count(l) > 0; }))
+        return;
+      whole_labels.insert(blob.object_labels.begin(), blob.object_labels.end());
       for (const Eigen::Vector2i& c : objectCellsOutside(os, blob.object_labels, blob.cells)) {
         const float h = hs.at(c.x(), c.y());
         if (!(h > cfg.h_obj)) continue;
         reg.columns.emplace_back(hs.i0 + c.x(), hs.j0 + c.y());
         columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo_flat - vs,
                      static_cast<double>(h) + trunc, cfg.w_min, voxels);
-        ranges.push_back(
-            {c.x(), c.y(), -1, static_cast<float>(pointFloor(c)), h + static_cast<float>(vs)});
+        const auto floor_c = static_cast<float>(pointFloor(c));
+        ranges.push_back({c.x(), c.y(), -1, floor_c, h + static_cast<float>(vs), floor_c});
         r.validated.set(c.x(), c.y());
       }
+    };
+    // A small move reports its whole object, from where it stood to where it stands now.
+    if (cand.small_move) {
+      moved_labels.insert(blob.object_labels.begin(), blob.object_labels.end());
+      takeWholeObject();
       target_labels.clear();
       landed_cells.clear();
     }
     // A sliver of an object that moved a little or whose loss has 3D evidence, with objects
     // standing inside the old footprint now: they replaced it, beside whatever the sliver's own
-    // cells land on (design.md, "Replaced inside the footprint").
+    // cells land on, and the whole old object is gone (design.md, "Replaced inside the
+    // footprint").
     if (blob.partial && (cand.small_move || val.verdict == BlobValidation::Verdict::Changed)) {
       std::vector<std::size_t> covered;
       const std::map<int, int> inside =
@@ -1181,7 +1201,10 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       landed_cells.insert(landed_cells.end(), covered.begin(), covered.end());
       // Each of those objects stands at least half inside the object this sliver is part of:
       // the replacement is on the object's footprint, whatever of it the sliver's own cells hit.
-      if (!inside.empty()) cand.target_object_overlap = 1.0;
+      if (!inside.empty()) {
+        cand.target_object_overlap = 1.0;
+        takeWholeObject();
+      }
     }
 
     for (const auto& c : blob.cells) r.validated.set(c.x(), c.y());
@@ -1285,13 +1308,14 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       return static_cast<std::size_t>(y - by0) * bw + static_cast<std::size_t>(x - bx0);
     };
     std::vector<int> owner(box_cells, -1);
-    std::vector<float> lo_d(box_cells, 0.0f), hi_d(box_cells, 0.0f);
+    std::vector<float> lo_d(box_cells, 0.0f), hi_d(box_cells, 0.0f), cov_d(box_cells, 0.0f);
     std::vector<std::uint8_t> is_owned(box_cells, 0);
     for (const OwnedCell& o : owned) {
       const std::size_t l = local(o.x, o.y);
       owner[l] = o.owner;
       lo_d[l] = o.lo;
       hi_d[l] = o.hi;
+      cov_d[l] = o.covered_lo;
       is_owned[l] = 1;
     }
     // Each owned cell, in raster order, offers itself to the unowned cells of its ring: a cell
@@ -1306,7 +1330,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           if (is_owned[l]) continue;
           if (owner[l] < 0) {
             owner[l] = o.owner;
-            lo_d[l] = static_cast<float>(pointFloor(Eigen::Vector2i(nx, ny)));
+            lo_d[l] = cov_d[l] = static_cast<float>(pointFloor(Eigen::Vector2i(nx, ny)));
             hi_d[l] = o.hi;
           } else if (owner[l] == o.owner) {
             hi_d[l] = std::max(hi_d[l], o.hi);
@@ -1324,8 +1348,12 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         [&](std::size_t c) { return owner[localOf(c)] >= 0; },
         [&](std::size_t i, std::size_t c, double z) {
           const std::size_t l = localOf(c);
-          if (z >= lo_d[l] && z <= hi_d[l])
-            out[static_cast<std::size_t>(owner[l])].region.points.push_back(source_points[i]);
+          CandidateChange& to = out[static_cast<std::size_t>(owner[l])];
+          if (z >= lo_d[l] && z <= hi_d[l]) {
+            to.region.points.push_back(source_points[i]);
+          } else if (z >= cov_d[l] && z < lo_d[l]) {
+            to.covered_points.push_back(source_points[i]);
+          }
         });
   }
   if (!options.keep_stages) {
@@ -1407,8 +1435,8 @@ void mergeDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
     const ChangeRegion &ra = c[a].region, &rb = c[b].region;
     const bool ca = ra.verdict == BlobValidation::Verdict::Changed;
     const bool cb = rb.verdict == BlobValidation::Verdict::Changed;
-    return std::make_tuple(ca, ra.scored, ra.points.size()) >
-           std::make_tuple(cb, rb.scored, rb.points.size());
+    return std::make_tuple(!c[a].supporting, ca, ra.scored, ra.points.size()) >
+           std::make_tuple(!c[b].supporting, cb, rb.scored, rb.points.size());
   };
   for (std::size_t i = 0; i < c.size(); ++i)
     for (std::size_t j = i + 1; j < c.size(); ++j) {
@@ -1425,6 +1453,49 @@ void mergeDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
     }
 }
 
+/// A candidate's points under the target objects it lands on (CandidateChange::covered_points),
+/// kept aside while the events are formed.
+struct Covered {
+  bool removed = true;  ///< a reference-side candidate
+  int plane_id = -1, target_plane_id = -1;
+  std::vector<Eigen::Vector2i> columns, target_object_columns;
+  std::vector<Eigen::Vector3f> points;
+};
+
+std::vector<Covered> coveredOf(std::vector<CandidateChange>& candidates, bool removed) {
+  std::vector<Covered> out;
+  for (CandidateChange& c : candidates) {
+    if (c.covered_points.empty() || c.target_object.empty()) continue;
+    out.push_back({removed, c.region.plane_id, c.target_object.plane_id, c.region.columns,
+                   c.target_object.columns, std::move(c.covered_points)});
+  }
+  return out;
+}
+
+/// The event side holding a region of `plane_id` on `columns`, or null.
+ChangeRegion* sideOn(std::vector<ChangeEvent>& events, ChangeRegion ChangeEvent::*side,
+                     int plane_id, const std::vector<Eigen::Vector2i>& columns) {
+  for (ChangeEvent& e : events) {
+    ChangeRegion& r = e.*side;
+    if (!r.empty() && r.plane_id == plane_id && columnsOverlap(r.columns, columns)) return &r;
+  }
+  return nullptr;
+}
+
+/// A candidate's covered points join its event when the objects they stood under are in an event
+/// too (a swap or a replacement: both objects changed where they overlap).
+void addCoveredPoints(std::vector<ChangeEvent>& events, std::vector<Covered> covered) {
+  for (Covered& c : covered) {
+    const auto own = c.removed ? &ChangeEvent::reference : &ChangeEvent::current;
+    const auto other = c.removed ? &ChangeEvent::current : &ChangeEvent::reference;
+    ChangeRegion* into = sideOn(events, own, c.plane_id, c.columns);
+    if (into == nullptr ||
+        sideOn(events, other, c.target_plane_id, c.target_object_columns) == nullptr)
+      continue;
+    mergePoints(into->points, c.points);
+  }
+}
+
 }  // namespace
 
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
@@ -1433,6 +1504,8 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
   mergeDuplicates(removed, r_used);
   mergeDuplicates(added, a_used);
+  std::vector<Covered> covered = coveredOf(removed, true);
+  for (Covered& c : coveredOf(added, false)) covered.push_back(std::move(c));
   const auto unknown = [](const CandidateChange& c) {
     return c.region.verdict == BlobValidation::Verdict::Unknown;
   };
@@ -1462,9 +1535,10 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   // voxel), are one static object whose height maps differ (seen from other viewpoints), not a
   // change. Candidates the validation did score keep their verdict.
   for (std::size_t i = 0; i < removed.size(); ++i) {
-    if (!unknown(removed[i])) continue;
+    if (!unknown(removed[i]) || removed[i].supporting) continue;
     for (std::size_t j = 0; j < added.size() && !r_used[i]; ++j) {
-      if (a_used[j] || !unknown(added[j]) || added[j].region.plane_id != removed[i].target_plane_id)
+      if (a_used[j] || !unknown(added[j]) || added[j].supporting ||
+          added[j].region.plane_id != removed[i].target_plane_id)
         continue;
       if (!columnsOverlap(removed[i].target_columns, added[j].region.columns)) continue;
       if (shapeDistance(removed[i].region.shape, added[j].region.shape) >= kMovedShapeDistance)
@@ -1487,17 +1561,24 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   };
   // The objects a moved object stands on in the other session: in a swap, the other object
   // where this one went (reference side) and where it came from (current side).
-  std::vector<ChangeRegion> under_reference, under_current;
-  const auto landedOn = [](CandidateChange& c, std::vector<ChangeRegion>& into) {
-    if (c.target_object_overlap >= kReplacedMinOverlap && !c.target_object.empty())
-      into.push_back(std::move(c.target_object));
+  // Each with whether the move covers it by half or more (else it is only taken by a move it
+  // meets: the lower part of a taller object, under the other one).
+  std::vector<std::pair<ChangeRegion, bool>> under_reference, under_current;
+  const auto landedOn = [](CandidateChange& c, std::vector<std::pair<ChangeRegion, bool>>& into) {
+    if (!c.target_object.empty())
+      into.emplace_back(std::move(c.target_object), c.target_object_overlap >= kReplacedMinOverlap);
   };
-  // Moved: greedy over the pairs with matching shapes, best first.
+  // Moved: greedy over the pairs with matching shapes, best first (supporting slivers are no
+  // object's shape).
+  std::vector<bool> r_skip = r_used, a_skip = a_used;
+  for (std::size_t i = 0; i < removed.size(); ++i) r_skip[i] = r_skip[i] || removed[i].supporting;
+  for (std::size_t j = 0; j < added.size(); ++j) a_skip[j] = a_skip[j] || added[j].supporting;
   const auto movedPairs = pairByShape(
       removed.size(), added.size(),
       [&](std::size_t i) -> const ShapeSignature& { return removed[i].region.shape; },
-      [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_used,
-      a_used);
+      [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_skip,
+      a_skip);
+  for (const auto& [i, j] : movedPairs) r_used[i] = a_used[j] = true;
   for (const auto& [i, j] : movedPairs) {
     landedOn(added[j], under_reference);
     landedOn(removed[i], under_current);
@@ -1507,9 +1588,10 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   // places. A move overlapping such a region takes it (the other object's blobs were only the
   // ring the larger one leaves uncovered); regions no move overlaps (the other object's blobs
   // all covered) pair by shape as the other object's move.
-  const auto takeInto = [&](std::vector<ChangeRegion>& regions, ChangeRegion ChangeEvent::*side) {
+  const auto takeInto = [&](std::vector<std::pair<ChangeRegion, bool>>& regions,
+                            ChangeRegion ChangeEvent::*side) {
     std::vector<ChangeRegion> left;
-    for (ChangeRegion& x : regions) {
+    for (auto& [x, covered] : regions) {
       const auto e = std::find_if(events.begin(), events.end(), [&](const ChangeEvent& o) {
         const ChangeRegion& r = o.*side;
         return o.type == ChangeType::Moved && r.plane_id == x.plane_id &&
@@ -1517,7 +1599,7 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       });
       if (e != events.end()) {
         uniteRegion((*e).*side, x);
-      } else {
+      } else if (covered) {
         left.push_back(std::move(x));
       }
     }
@@ -1538,13 +1620,32 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   for (std::size_t i = 0; i < removed.size(); ++i) {
     if (r_used[i]) continue;
     CandidateChange& r = removed[i];
-    ChangeEvent e;
+    std::vector<std::size_t> on_footprint;
+    bool any_strong = !r.supporting;
     for (std::size_t j = 0; j < added.size(); ++j) {
       if (a_used[j] || added[j].region.plane_id != r.target_plane_id) continue;
       if (!columnsOverlap(r.target_columns, added[j].region.columns)) continue;
+      on_footprint.push_back(j);
+      any_strong = any_strong || !added[j].supporting;
+    }
+    if (!any_strong) continue;  // supporting slivers only: no event (design.md)
+    ChangeEvent e;
+    for (const std::size_t j : on_footprint) {
       a_used[j] = true;
       appendRegion(e.current, added[j].region);
+      // The old objects it landed on, whole: where the new object is taller, its blob holds only
+      // the part above them (design.md, "Changed objects whole").
+      const ChangeRegion& old_objects = added[j].target_object;
+      if (old_objects.plane_id == r.region.plane_id &&
+          (added[j].target_object_overlap >= kReplacedMinOverlap ||
+           columnsOverlap(old_objects.columns, r.region.columns)))
+        uniteRegion(r.region, old_objects);
     }
+    // Likewise the new objects the old one landed on, whole.
+    if (!e.current.empty() && !r.target_object.empty() &&
+        (r.target_object_overlap >= kReplacedMinOverlap ||
+         columnsOverlap(r.target_object.columns, e.current.columns)))
+      uniteRegion(e.current, r.target_object);
     if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
         !r.target_object.empty()) {
       // Another sliver of the same old object, replaced by the same new one: one event.
@@ -1584,19 +1685,21 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
   }
 
   for (std::size_t i = 0; i < removed.size(); ++i) {
-    if (r_used[i]) continue;
+    if (r_used[i] || removed[i].supporting) continue;
     ChangeEvent e;
     e.type = ChangeType::Removed;
     e.reference = std::move(removed[i].region);
     events.push_back(std::move(e));
   }
   for (std::size_t j = 0; j < added.size(); ++j) {
-    if (a_used[j]) continue;
+    if (a_used[j] || added[j].supporting) continue;
     ChangeEvent e;
     e.type = ChangeType::Added;
     e.current = std::move(added[j].region);
     events.push_back(std::move(e));
   }
+
+  addCoveredPoints(events, std::move(covered));
 
   std::stable_sort(events.begin(), events.end(), [](const ChangeEvent& a, const ChangeEvent& b) {
     const auto ka = std::make_tuple(typeOrder(a.type), a.planeId(), a.primary().centroid.x(),

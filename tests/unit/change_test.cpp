@@ -453,6 +453,103 @@ TEST(AssembleEvents, ANewObjectWiderThanTheOldOneIsTheReplacementNotAnotherEvent
   EXPECT_EQ(e[0].current.points.size(), 2u);  // the object's, and the ring's it did not hold
 }
 
+TEST(AssembleEvents, AReplacementReportsBothObjectsWholeWhereTheyOverlap) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // An old box (reference columns 0-5) replaced by a lower ring (current columns 3-9): each blob
+  // is only the part of its object above the other (old 0-2, new 6-9), each lands on the other
+  // object in part only (overlap 0.3). Both objects are reported whole, no point twice.
+  const auto points = [](int x0, int x1, float z, ChangeRegion& r) {
+    r.plane_id = 0;
+    for (int x = x0; x <= x1; ++x) {
+      r.columns.emplace_back(x, 0);
+      r.points.emplace_back(0.01f * static_cast<float>(x), 0.0f, z);
+    }
+  };
+  CandidateChange old_box = candidate(V::Changed, false);
+  old_box.region.columns.clear();
+  points(0, 2, 0.08f, old_box.region);
+  old_box.target_columns = {Eigen::Vector2i(0, 0), Eigen::Vector2i(1, 0), Eigen::Vector2i(2, 0),
+                            Eigen::Vector2i(6, 0)};  // the grown blob reaches the ring
+  old_box.target_object_overlap = 0.3;
+  points(3, 9, 0.04f, old_box.target_object);
+  CandidateChange ring = candidate(V::Unknown, false);
+  ring.region.columns.clear();
+  points(6, 9, 0.04f, ring.region);
+  ring.target_object_overlap = 0.3;
+  points(0, 5, 0.08f, ring.target_object);
+  const auto e = assembleEvents({old_box}, {ring}, cfg);
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].type, ChangeType::Replaced);
+  EXPECT_EQ(e[0].reference.points.size(), 6u);
+  EXPECT_EQ(e[0].current.points.size(), 7u);
+  // A new object beside the old one, whose target objects do not meet the old blob, adds none.
+  CandidateChange beside = ring;
+  beside.target_object = ChangeRegion{};
+  points(20, 25, 0.08f, beside.target_object);
+  const auto b = assembleEvents({old_box}, {beside}, cfg);
+  ASSERT_EQ(b.size(), 1u);
+  EXPECT_EQ(b[0].reference.points.size(), 3u);
+}
+
+TEST(AssembleEvents, PointsUnderTheOtherObjectJoinOnlyWhenThatObjectChanged) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // A removed object whose columns (0-1) hold points under the height of a current object
+  // (columns 0-3): a wider, lower object that replaced it (an added blob on columns 2-3), or a
+  // static box it lay on (no blob).
+  CandidateChange top = candidate(V::Changed, false);
+  top.region.columns = {Eigen::Vector2i(0, 0), Eigen::Vector2i(1, 0)};
+  top.region.points = {Eigen::Vector3f(0.0f, 0.0f, 0.2f), Eigen::Vector3f(0.01f, 0.0f, 0.2f)};
+  top.target_columns = top.region.columns;
+  top.target_object_overlap = 1.0;
+  top.target_object.plane_id = 0;
+  for (int x = 0; x < 4; ++x) {
+    top.target_object.columns.emplace_back(x, 0);
+    top.target_object.points.emplace_back(0.01f * static_cast<float>(x), 0.0f, 0.05f);
+  }
+  top.covered_points = {Eigen::Vector3f(0.0f, 0.0f, 0.03f), Eigen::Vector3f(0.01f, 0.0f, 0.03f)};
+  CandidateChange ring = candidate(V::Changed, false);
+  ring.region.columns = {Eigen::Vector2i(2, 0), Eigen::Vector2i(3, 0)};
+  ring.region.points = {Eigen::Vector3f(0.02f, 0.0f, 0.05f)};
+  const auto replaced = assembleEvents({top}, {ring}, cfg);
+  ASSERT_EQ(replaced.size(), 1u);
+  EXPECT_EQ(replaced[0].type, ChangeType::Replaced);
+  EXPECT_EQ(replaced[0].reference.points.size(), 4u);
+  // On a static box the points under it are the box's.
+  CandidateChange on_box = top;
+  on_box.target_object_overlap = 0.0;
+  const auto removed = assembleEvents({on_box}, {}, cfg);
+  ASSERT_EQ(removed.size(), 1u);
+  EXPECT_EQ(removed[0].type, ChangeType::Removed);
+  EXPECT_EQ(removed[0].reference.points.size(), 2u);
+}
+
+TEST(AssembleEvents, ASupportingSliverJoinsAnotherCandidatesEventButMakesNone) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // The part of a new ring outside the old box's footprint (columns 6-9), with too little 3D
+  // evidence to stand alone, and the box's removal (columns 0-5) whose blob reaches it.
+  CandidateChange ring = candidate(V::Unknown, false);
+  ring.supporting = true;
+  ring.region.columns = {Eigen::Vector2i(6, 0), Eigen::Vector2i(9, 0)};
+  ring.region.points = {Eigen::Vector3f(0.06f, 0.0f, 0.04f)};
+  EXPECT_TRUE(assembleEvents({}, {ring}, cfg).empty());
+  EXPECT_TRUE(assembleEvents({ring}, {}, cfg).empty());
+  CandidateChange box = candidate(V::Changed, false);
+  box.region.columns = {Eigen::Vector2i(0, 0), Eigen::Vector2i(5, 0)};
+  box.region.points = {Eigen::Vector3f(0.0f, 0.0f, 0.08f)};
+  box.target_columns = {Eigen::Vector2i(5, 0), Eigen::Vector2i(6, 0)};
+  const auto e = assembleEvents({box}, {ring}, cfg);
+  ASSERT_EQ(e.size(), 1u);
+  EXPECT_EQ(e[0].type, ChangeType::Replaced);
+  EXPECT_EQ(e[0].current.points.size(), 1u);
+  // Two supporting slivers on each other's columns make no event either, even of matching shape.
+  CandidateChange old_part = ring;
+  old_part.target_columns = ring.region.columns;
+  EXPECT_TRUE(assembleEvents({old_part}, {ring}, cfg).empty());
+}
+
 TEST(AssembleEvents, ASmallMoveFoundFromEitherSideIsOneMovedEvent) {
   using V = BlobValidation::Verdict;
   const Config cfg;
