@@ -390,13 +390,6 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     }
     if (e.current.empty()) continue;
     r_used[i] = true;
-    // A replacement rests on 3D evidence: where neither side scored a key voxel, the two height
-    // maps disagree about an object neither map could check, seen from other viewpoints (design.md,
-    // "Replacements need 3D evidence").
-    const auto unchecked = [](const ChangeRegion& x) {
-      return x.scored == 0 && x.verdict != BlobValidation::Verdict::Changed;
-    };
-    if (!r.small_move && unchecked(r.region) && unchecked(e.current)) continue;
     e.type = r.small_move ? ChangeType::Moved : ChangeType::Replaced;
     e.reference = std::move(r.region);
     events.push_back(std::move(e));

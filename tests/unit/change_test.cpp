@@ -550,26 +550,6 @@ TEST(AssembleEvents, ASupportingSliverJoinsAnotherCandidatesEventButMakesNone) {
   EXPECT_TRUE(assembleEvents({old_part}, {ring}, cfg).empty());
 }
 
-TEST(AssembleEvents, AReplacementNeitherSideCouldCheckIn3DIsNoEvent) {
-  using V = BlobValidation::Verdict;
-  const Config cfg;
-  // An object seen in both maps with other outlines (coverage): the removed candidate lands on
-  // the current object, neither scored a key voxel.
-  CandidateChange seen = candidate(V::Unknown, false);
-  seen.region.points = {Eigen::Vector3f(0.0f, 0.0f, 0.1f)};
-  seen.target_object_overlap = 1.0;
-  seen.target_object.plane_id = 0;
-  seen.target_object.columns = {Eigen::Vector2i(1, 1), Eigen::Vector2i(2, 1)};
-  seen.target_object.points = {Eigen::Vector3f(0.01f, 0.0f, 0.1f)};
-  EXPECT_TRUE(assembleEvents({seen}, {}, cfg).empty());
-  // One scored key voxel on either side is evidence enough to report it.
-  CandidateChange scored = seen;
-  scored.region.scored = 3;
-  const auto e = assembleEvents({scored}, {}, cfg);
-  ASSERT_EQ(e.size(), 1u);
-  EXPECT_EQ(e[0].type, ChangeType::Replaced);
-}
-
 TEST(AssembleEvents, ASmallMoveFoundFromEitherSideIsOneMovedEvent) {
   using V = BlobValidation::Verdict;
   const Config cfg;
