@@ -1,0 +1,333 @@
+// The session comparison: plane pairs matched one-to-one, the session's drift corrected, both
+// directions compared pair by pair, and the candidates assembled into events (see change.hpp,
+// detectChanges).
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <set>
+#include <utility>
+
+#include "../numeric.hpp"
+#include "../parallel.hpp"
+#include "planesdf/change.hpp"
+#include "planesdf/error.hpp"
+
+namespace planesdf {
+
+using detail::parallelFor;
+
+std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> ms) {
+  std::stable_sort(ms.begin(), ms.end(), [](const PlaneMatch& a, const PlaneMatch& b) {
+    return std::abs(a.offset_gap) < std::abs(b.offset_gap);
+  });
+  std::vector<PlaneMatch> out;
+  std::set<int> taken;
+  for (const PlaneMatch& m : ms)
+    if (taken.insert(m.target_id).second) out.push_back(m);
+  std::sort(out.begin(), out.end(),
+            [](const PlaneMatch& a, const PlaneMatch& b) { return a.source_id < b.source_id; });
+  return out;
+}
+
+std::vector<CandidateChange> compareMatchedPair(
+    const Map& reference, const Map& current, bool reference_to_current, PlaneMatch match,
+    const PlaneMaps& source_maps, const PlaneMaps& target_maps, RefinedTransforms& refined,
+    const Config& cfg, const DetectOptions& options, PlanePairResult* result) {
+  const Map& src = reference_to_current ? reference : current;
+  const Map& tgt = reference_to_current ? current : reference;
+  bool refine = cfg.refine_inplane;
+  if (!reference_to_current) {
+    const auto it = refined.find({match.target_id, match.source_id});
+    if (it != refined.end()) {
+      match.T_target_source_local = it->second.inverse();
+      refine = false;
+    }
+  }
+  PlanePairResult local;
+  PlanePairResult& res = result != nullptr ? *result : local;
+  res.reference_to_current = reference_to_current;
+  auto out = comparePlanePair(src.planes()[static_cast<std::size_t>(match.source_id)], source_maps,
+                              tgt.planes()[static_cast<std::size_t>(match.target_id)], target_maps,
+                              match, refine, src.points(), tgt.points(), cfg, options, &res);
+  if (reference_to_current)
+    refined[{match.source_id, match.target_id}] = res.match.T_target_source_local;
+  return out;
+}
+
+namespace {
+
+/// The horizontal forward pairs' best in-plane refinement as a world motion applied after the
+/// plane alignment (identity when none refines), and the anchor of the plane it came from.
+std::pair<Pose, Eigen::Vector3d> horizontalCorrection(
+    const Map& reference, const Map& current, const std::vector<PlaneMatch>& forward_matches,
+    const std::function<const PlaneMaps&(bool, int)>& maps, const Config& cfg) {
+  // The horizontal pairs, refined independently (in parallel; the maps are computed first, in
+  // order, since `maps` may compute them lazily), then the first with the largest gain wins.
+  std::vector<std::size_t> horizontal;
+  for (std::size_t i = 0; i < forward_matches.size(); ++i) {
+    const PlaneMatch& m = forward_matches[i];
+    if (reference.planes()[static_cast<std::size_t>(m.source_id)].plane.orientation !=
+            Plane::Orientation::Horizontal ||
+        current.planes()[static_cast<std::size_t>(m.target_id)].plane.orientation !=
+            Plane::Orientation::Horizontal)
+      continue;
+    horizontal.push_back(i);
+    maps(true, m.source_id);
+    maps(false, m.target_id);
+  }
+  std::vector<Pose> T(horizontal.size());
+  std::vector<InPlaneRefinement> r(horizontal.size());
+  parallelFor(static_cast<int>(horizontal.size()), cfg.threads, [&](int k) {
+    const PlaneMatch& m = forward_matches[horizontal[static_cast<std::size_t>(k)]];
+    T[k] = m.T_target_source_local;
+    r[k] = refineInPlane(maps(true, m.source_id).heights, maps(true, m.source_id).objects,
+                         maps(false, m.target_id).heights, maps(false, m.target_id).objects, T[k],
+                         cfg);
+  });
+  Pose correction = Pose::Identity();
+  Eigen::Vector3d anchor = Eigen::Vector3d::Zero();
+  int best_gain = 0;
+  for (std::size_t k = 0; k < horizontal.size(); ++k) {
+    const PlaneMatch& m = forward_matches[horizontal[k]];
+    const int gain = r[k].mismatches_before - r[k].mismatches_after;
+    if (!r[k].applied || gain <= best_gain) continue;
+    best_gain = gain;
+    // T = D * T0 in target-local coordinates: C = F_t * D * F_t^-1 in the world.
+    const Plane& target = current.planes()[static_cast<std::size_t>(m.target_id)].plane;
+    const Pose Ft = target.frame();
+    correction = Ft * (T[k] * m.T_target_source_local.inverse()) * Ft.inverse();
+    anchor = planeAnchor(target);
+  }
+  return {correction, anchor};
+}
+
+/// Signed angle (rad) about `up` from the horizontal part of `a` to that of `b`.
+double yawBetween(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& up) {
+  const Eigen::Vector3d ha = a - a.dot(up) * up, hb = b - b.dot(up) * up;
+  return std::atan2(ha.cross(hb).dot(up), ha.dot(hb));
+}
+
+struct WallVote {
+  double yaw = 0.0;
+  double weight = 0.0;
+  const Plane* source = nullptr;
+  const Plane* target = nullptr;
+};
+
+/// The matched vertical planes large enough to vote on the drift.
+std::vector<WallVote> wallVotes(const Map& reference, const Map& current,
+                                const std::vector<PlaneMatch>& forward_matches,
+                                const Eigen::Vector3d& up) {
+  std::vector<WallVote> votes;
+  for (const PlaneMatch& m : forward_matches) {
+    const Plane& s = reference.planes()[static_cast<std::size_t>(m.source_id)].plane;
+    const Plane& t = current.planes()[static_cast<std::size_t>(m.target_id)].plane;
+    if (s.orientation != Plane::Orientation::Vertical ||
+        t.orientation != Plane::Orientation::Vertical || s.extent.isEmpty() || t.extent.isEmpty())
+      continue;
+    const double area = std::min(s.extent.volume(), t.extent.volume());
+    if (area < kDriftMinWallArea) continue;
+    votes.push_back({yawBetween(s.normal, t.normal, up), area, &s, &t});
+  }
+  return votes;
+}
+
+double weightedMedianYaw(std::vector<WallVote> votes) {
+  std::sort(votes.begin(), votes.end(),
+            [](const WallVote& a, const WallVote& b) { return a.yaw < b.yaw; });
+  double total = 0.0;
+  for (const WallVote& v : votes) total += v.weight;
+  double acc = 0.0;
+  for (const WallVote& v : votes) {
+    acc += v.weight;
+    if (acc >= 0.5 * total) return v.yaw;
+  }
+  return votes.back().yaw;
+}
+
+}  // namespace
+
+SessionCorrection sessionCorrection(const Map& reference, const Map& current,
+                                    const std::vector<PlaneMatch>& forward_matches,
+                                    const std::function<const PlaneMaps&(bool, int)>& maps,
+                                    const Config& cfg) {
+  const auto [horizontal, anchor] =
+      horizontalCorrection(reference, current, forward_matches, maps, cfg);
+  const Eigen::Vector3d up = current.up().normalized();
+  const std::vector<WallVote> votes = wallVotes(reference, current, forward_matches, up);
+  if (votes.empty()) return {horizontal, false};
+  // Rotation: the walls' weighted median; shift: least squares of the agreeing walls' offsets
+  // (n_t · (R p_s + t) + d_t = 0 for a point p_s of the source wall), in the horizontal plane.
+  const double yaw = weightedMedianYaw(votes);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(yaw, up).toRotationMatrix();
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  for (const WallVote& v : votes) {
+    if (std::abs(v.yaw - yaw) > detail::kDegToRad) continue;  // another wall pairing
+    const Eigen::Vector3d n = (v.target->normal - v.target->normal.dot(up) * up).normalized();
+    const double d = v.target->offset / v.target->normal.norm();
+    const double rhs = -(v.target->normal.normalized().dot(R * planeAnchor(*v.source)) + d);
+    A += v.weight * n * n.transpose();
+    b += v.weight * rhs * n;
+  }
+  // Directions the walls constrain (eigenvalues of A) take their shift; the others the shift
+  // the horizontal refinement gives at its plane's anchor.
+  const Eigen::Vector3d fallback = horizontal * anchor - R * anchor;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(A);
+  Eigen::Vector3d t = Eigen::Vector3d::Zero();
+  const double top = eig.eigenvalues().maxCoeff();
+  for (int i = 0; i < 3; ++i) {
+    const Eigen::Vector3d e = eig.eigenvectors().col(i);
+    const double lambda = eig.eigenvalues()(i);
+    t += (lambda > 0.05 * top && lambda > 0.0 ? e.dot(b) / lambda : e.dot(fallback)) * e;
+  }
+  t -= t.dot(up) * up;  // heights come from each pair's own plane alignment
+  Pose motion = Pose::Identity();
+  motion.linear() = R;
+  motion.translation() = t;
+  return {motion, true};
+}
+
+PlaneMatch corrected(PlaneMatch match, const Map& reference, const Map& current,
+                     const SessionCorrection& correction) {
+  const Pose Ft = current.planes()[static_cast<std::size_t>(match.target_id)].plane.frame();
+  if (!correction.rigid) {
+    match.T_target_source_local =
+        Ft.inverse() * correction.motion * Ft * match.T_target_source_local;
+    return match;
+  }
+  // The motion in the plane frames, kept as a yaw and an in-plane shift (as
+  // relativePlaneTransform: heights come from the plane alignment).
+  const Pose Fs = reference.planes()[static_cast<std::size_t>(match.source_id)].plane.frame();
+  Pose T = Ft.inverse() * correction.motion * Fs;
+  const double yaw = std::atan2(T.linear()(1, 0), T.linear()(0, 0));
+  T.linear() = Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  T.translation().z() = 0.0;
+  match.T_target_source_local = T;
+  return match;
+}
+
+ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
+                        const DetectOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (reference.config().voxel_size != current.config().voxel_size)
+    throw Error("", "the reference and current maps have different voxel sizes (" +
+                        std::to_string(reference.config().voxel_size) + " vs " +
+                        std::to_string(current.config().voxel_size) + " m)");
+  ChangeSet set;
+  const auto& rp = reference.planes();
+  const auto& cp = current.planes();
+  std::vector<PlaneMaps> rmaps(rp.size()), cmaps(cp.size());
+  std::vector<bool> rdone(rp.size(), false), cdone(cp.size(), false);
+  const auto mapsOf = [&](bool ref, int id) -> const PlaneMaps& {
+    auto& done = ref ? rdone : cdone;
+    auto& maps = ref ? rmaps : cmaps;
+    const auto i = static_cast<std::size_t>(id);
+    if (!done[i]) {
+      const Map& m = ref ? reference : current;
+      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg, &m.points(),
+                                 surfaceRimCells(m));
+      done[i] = true;
+    }
+    return maps[i];
+  };
+
+  std::vector<CandidateChange> removed, added;
+  RefinedTransforms refined;
+  const std::vector<PlaneMatch> forward_matches =
+      uniqueMatches(registerPlanes(reference, current, cfg));
+  const std::vector<PlaneMatch> backward_matches =
+      uniqueMatches(registerPlanes(current, reference, cfg));
+  const auto msSince = [](std::chrono::steady_clock::time_point t) {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+  };
+  // The maps of every matched plane, in parallel (computed once; read-only from here on).
+  auto tp = std::chrono::steady_clock::now();
+  {
+    std::vector<std::pair<bool, int>> needed;
+    for (const PlaneMatch& m : forward_matches) {
+      needed.emplace_back(true, m.source_id);
+      needed.emplace_back(false, m.target_id);
+    }
+    for (const PlaneMatch& m : backward_matches) {
+      needed.emplace_back(false, m.source_id);
+      needed.emplace_back(true, m.target_id);
+    }
+    std::sort(needed.begin(), needed.end());
+    needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
+    // Largest volumes first (the threads take the next plane as they finish: the long ones
+    // start early instead of last).
+    const auto blocksOf = [&](const std::pair<bool, int>& n) {
+      return (n.first ? rp : cp)[static_cast<std::size_t>(n.second)].volume.numBlocks();
+    };
+    std::stable_sort(needed.begin(), needed.end(),
+                     [&](const auto& a, const auto& b) { return blocksOf(a) > blocksOf(b); });
+    parallelFor(static_cast<int>(needed.size()), cfg.threads, [&](int k) {
+      const auto [ref, id] = needed[static_cast<std::size_t>(k)];
+      const auto i = static_cast<std::size_t>(id);
+      const Map& m = ref ? reference : current;
+      (ref ? rmaps : cmaps)[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg,
+                                                  &m.points(), surfaceRimCells(m));
+    });
+    for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
+    // One chunk index of each map's points for all its planes' maps (built on first use).
+    for (const bool ref : {true, false}) {
+      auto chunks = std::make_shared<detail::PointChunks>();
+      chunks->source = &(ref ? reference : current).points();
+      for (PlaneMaps& m : ref ? rmaps : cmaps)
+        if (m.points) m.points->chunks = chunks;
+    }
+  }
+  set.maps_ms = msSince(tp);
+  tp = std::chrono::steady_clock::now();
+  const SessionCorrection correction =
+      cfg.refine_inplane
+          ? sessionCorrection(
+                reference, current, forward_matches,
+                [&](bool ref, int id) -> const PlaneMaps& { return mapsOf(ref, id); }, cfg)
+          : SessionCorrection{};
+  set.correction_ms = msSince(tp);
+  for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
+    tp = std::chrono::steady_clock::now();
+    std::vector<PlaneMatch> matches = forward ? forward_matches : backward_matches;
+    if (forward)
+      for (PlaneMatch& m : matches) m = corrected(m, reference, current, correction);
+    // The pairs of one direction are independent: in parallel, each with its own share of the
+    // refined transforms, merged in pair order.
+    std::vector<PlanePairResult> results(matches.size());
+    std::vector<std::vector<CandidateChange>> found(matches.size());
+    std::vector<RefinedTransforms> own(matches.size());
+    // Largest source maps first (results stay in pair order).
+    std::vector<std::size_t> order(matches.size());
+    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+    const auto cellsOf = [&](std::size_t i) {
+      return mapsOf(forward, matches[i].source_id).heights.numCells();
+    };
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::size_t a, std::size_t b) { return cellsOf(a) > cellsOf(b); });
+    parallelFor(static_cast<int>(matches.size()), cfg.threads, [&](int k) {
+      const std::size_t i = order[static_cast<std::size_t>(k)];
+      const PlaneMatch& m = matches[i];
+      if (!forward) own[i] = refined;  // read only backwards
+      found[i] =
+          compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
+                             mapsOf(!forward, m.target_id), own[i], cfg, options, &results[i]);
+    });
+    for (std::size_t i = 0; i < matches.size(); ++i) {
+      if (forward) refined.insert(own[i].begin(), own[i].end());
+      for (auto& x : found[i]) (forward ? removed : added).push_back(std::move(x));
+      set.pairs.push_back(std::move(results[i]));
+    }
+    (forward ? set.forward_ms : set.backward_ms) = msSince(tp);
+  }
+  set.events = assembleEvents(std::move(removed), std::move(added), cfg);
+  set.milliseconds =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return set;
+}
+
+}  // namespace planesdf
