@@ -74,6 +74,7 @@ constexpr double kStructureMinExtent = 1.0;
 /// A vertical plane at least this long (m) is a wall of the room.
 constexpr double kWallMinLength = 2.0;
 constexpr double kNoReachLimit = std::numeric_limits<double>::infinity();
+constexpr float kAbove = std::numeric_limits<float>::infinity();
 constexpr double kOtherPlaneMargin = 0.03;
 
 double relDiff(double a, double b, double floor_value) {
@@ -1075,8 +1076,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     }
 
     // Its whole object's columns, from the plane up (once per object: another sliver of it joins
-    // the event that took it).
-    const auto takeWholeObject = [&] {
+    // the event that took it). As covered points only: they join when the objects it lands on
+    // are in an event too (design.md, "Changed objects whole").
+    const auto takeWholeObject = [&](bool as_covered) {
       if (std::any_of(blob.object_labels.begin(), blob.object_labels.end(),
                       [&](int l) { return whole_labels.count(l) > 0; }))
         return;
@@ -1084,18 +1086,23 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       for (const Eigen::Vector2i& c : objectCellsOutside(os, blob.object_labels, blob.cells)) {
         const float h = hs.at(c.x(), c.y());
         if (!(h > cfg.h_obj)) continue;
+        const auto floor_c = static_cast<float>(pointFloor(c));
+        const float top = h + static_cast<float>(vs);
+        if (as_covered) {  // an empty region range above the top: every point is covered
+          ranges.push_back({c.x(), c.y(), -1, std::nextafter(top, kAbove), top, floor_c});
+          continue;
+        }
         reg.columns.emplace_back(hs.i0 + c.x(), hs.j0 + c.y());
         columnVoxels(src.volume, hs.i0 + c.x(), hs.j0 + c.y(), lo_flat - vs,
                      static_cast<double>(h) + trunc, cfg.w_min, voxels);
-        const auto floor_c = static_cast<float>(pointFloor(c));
-        ranges.push_back({c.x(), c.y(), -1, floor_c, h + static_cast<float>(vs), floor_c});
+        ranges.push_back({c.x(), c.y(), -1, floor_c, top, floor_c});
         r.validated.set(c.x(), c.y());
       }
     };
     // A small move reports its whole object, from where it stood to where it stands now.
     if (cand.small_move) {
       moved_labels.insert(blob.object_labels.begin(), blob.object_labels.end());
-      takeWholeObject();
+      takeWholeObject(false);
       target_labels.clear();
       landed_cells.clear();
     }
@@ -1114,7 +1121,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       // the replacement is on the object's footprint, whatever of it the sliver's own cells hit.
       if (!inside.empty()) {
         cand.target_object_overlap = 1.0;
-        takeWholeObject();
+        takeWholeObject(!cand.small_move);
       }
     }
 
@@ -1231,7 +1238,9 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     }
     // Each owned cell, in raster order, offers itself to the unowned cells of its ring: a cell
     // takes the first owner offered (the first owned cell of its own ring in raster order) and
-    // the highest upper bound among that owner's cells.
+    // the highest upper bound among that owner's cells. A ring cell only covered-only cells
+    // (lo above hi) offered themselves to is covered-only too.
+    std::vector<std::uint8_t> ring_region(box_cells, 0);
     for (const OwnedCell& o : owned) {
       const int x0 = std::max(bx0, o.x - kPointRing), x1 = std::min(bx1, o.x + kPointRing);
       const int y0 = std::max(by0, o.y - kPointRing), y1 = std::min(by1, o.y + kPointRing);
@@ -1245,9 +1254,15 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
             hi_d[l] = o.hi;
           } else if (owner[l] == o.owner) {
             hi_d[l] = std::max(hi_d[l], o.hi);
+          } else {
+            continue;
           }
+          if (o.lo <= o.hi) ring_region[l] = 1;
         }
     }
+    for (std::size_t l = 0; l < box_cells; ++l)
+      if (owner[l] >= 0 && !is_owned[l] && ring_region[l] == 0)
+        lo_d[l] = std::nextafter(hi_d[l], kAbove);
     const auto W = static_cast<std::size_t>(hs.width);
     const auto localOf = [&](std::size_t c) {  // a row-major cell of the map
       return local(static_cast<int>(c % W), static_cast<int>(c / W));
