@@ -178,6 +178,15 @@ void mergeDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
     }
 }
 
+/// Whether the target objects of `c` are part of the event whose other side is `other` (a region
+/// of the target map): `c` landed on them (half of it or more), or they meet `other`.
+bool targetsJoin(const CandidateChange& c, const ChangeRegion& other) {
+  const ChangeRegion& t = c.target_object;
+  return !t.empty() && t.plane_id == other.plane_id &&
+         (c.target_object_overlap >= kReplacedMinOverlap ||
+          columnsOverlap(t.columns, other.columns));
+}
+
 /// A candidate's points under the target objects it lands on (CandidateChange::covered_points),
 /// kept aside while the events are formed.
 struct Covered {
@@ -303,8 +312,8 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       [&](std::size_t i) -> const ShapeSignature& { return removed[i].region.shape; },
       [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_skip,
       a_skip);
-  for (const auto& [i, j] : movedPairs) r_used[i] = a_used[j] = true;
   for (const auto& [i, j] : movedPairs) {
+    r_used[i] = a_used[j] = true;
     landedOn(added[j], under_reference);
     landedOn(removed[i], under_current);
     addMoved(std::move(removed[i].region), std::move(added[j].region));
@@ -360,17 +369,10 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       appendRegion(e.current, added[j].region);
       // The old objects it landed on, whole: where the new object is taller, its blob holds only
       // the part above them (design.md, "Changed objects whole").
-      const ChangeRegion& old_objects = added[j].target_object;
-      if (old_objects.plane_id == r.region.plane_id &&
-          (added[j].target_object_overlap >= kReplacedMinOverlap ||
-           columnsOverlap(old_objects.columns, r.region.columns)))
-        uniteRegion(r.region, old_objects);
+      if (targetsJoin(added[j], r.region)) uniteRegion(r.region, added[j].target_object);
     }
     // Likewise the new objects the old one landed on, whole.
-    if (!e.current.empty() && !r.target_object.empty() &&
-        (r.target_object_overlap >= kReplacedMinOverlap ||
-         columnsOverlap(r.target_object.columns, e.current.columns)))
-      uniteRegion(e.current, r.target_object);
+    if (!e.current.empty() && targetsJoin(r, e.current)) uniteRegion(e.current, r.target_object);
     if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
         !r.target_object.empty()) {
       // Another sliver of the same old object, replaced by the same new one: one event.

@@ -942,7 +942,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     int x, y;
     int owner;
     float lo, hi;
-    float covered_lo;  ///< points from here to lo stand under the other map's object
+    float covered_lo;  ///< points from here to lo (hi when lo is kAbove) are covered points
   };
   std::vector<OwnedCell> owned;
   std::set<int> moved_labels;  // source objects a small move already reported whole
@@ -1088,8 +1088,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         if (!(h > cfg.h_obj)) continue;
         const auto floor_c = static_cast<float>(pointFloor(c));
         const float top = h + static_cast<float>(vs);
-        if (as_covered) {  // an empty region range above the top: every point is covered
-          ranges.push_back({c.x(), c.y(), -1, std::nextafter(top, kAbove), top, floor_c});
+        if (as_covered) {  // no region range: every point up to the top is covered
+          ranges.push_back({c.x(), c.y(), -1, kAbove, top, floor_c});
           continue;
         }
         reg.columns.emplace_back(hs.i0 + c.x(), hs.j0 + c.y());
@@ -1239,7 +1239,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // Each owned cell, in raster order, offers itself to the unowned cells of its ring: a cell
     // takes the first owner offered (the first owned cell of its own ring in raster order) and
     // the highest upper bound among that owner's cells. A ring cell only covered-only cells
-    // (lo above hi) offered themselves to is covered-only too.
+    // (lo kAbove) offered themselves to is covered-only too.
     std::vector<std::uint8_t> ring_region(box_cells, 0);
     for (const OwnedCell& o : owned) {
       const int x0 = std::max(bx0, o.x - kPointRing), x1 = std::min(bx1, o.x + kPointRing);
@@ -1257,12 +1257,11 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           } else {
             continue;
           }
-          if (o.lo <= o.hi) ring_region[l] = 1;
+          if (o.lo != kAbove) ring_region[l] = 1;
         }
     }
     for (std::size_t l = 0; l < box_cells; ++l)
-      if (owner[l] >= 0 && !is_owned[l] && ring_region[l] == 0)
-        lo_d[l] = std::nextafter(hi_d[l], kAbove);
+      if (owner[l] >= 0 && !is_owned[l] && ring_region[l] == 0) lo_d[l] = kAbove;
     const auto W = static_cast<std::size_t>(hs.width);
     const auto localOf = [&](std::size_t c) {  // a row-major cell of the map
       return local(static_cast<int>(c % W), static_cast<int>(c / W));
@@ -1277,7 +1276,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
           CandidateChange& to = out[static_cast<std::size_t>(owner[l])];
           if (z >= lo_d[l] && z <= hi_d[l]) {
             to.region.points.push_back(source_points[i]);
-          } else if (z >= cov_d[l] && z < lo_d[l]) {
+          } else if (z >= cov_d[l] && z <= hi_d[l]) {  // below lo
             to.covered_points.push_back(source_points[i]);
           }
         });
