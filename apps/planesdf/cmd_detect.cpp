@@ -40,14 +40,15 @@ int runDetect(const DetectArgs& args) {
     for (const PlanePairResult& r : set.pairs) {
       std::fprintf(stderr,
                    "%s plane %d -> %s plane %d: gap %+.3f m, in-plane %s (%.1f, %.1f cm, %.2f deg; "
-                   "mismatched %d/%d -> %d/%d cells), %zu blobs\n",
+                   "mismatched %d/%d -> %d/%d cells; best flips %d fixed, %d broken), %zu "
+                   "blobs\n",
                    r.reference_to_current ? "reference" : "current", r.match.source_id,
                    r.reference_to_current ? "current" : "reference", r.match.target_id,
                    r.match.offset_gap, r.refinement.applied ? "refined" : "kept",
                    r.refinement.du * 100, r.refinement.dv * 100, r.refinement.dyaw * 57.29578,
                    r.refinement.mismatches_before, r.refinement.compared_before,
-                   r.refinement.mismatches_after, r.refinement.compared_after,
-                   r.validations.size());
+                   r.refinement.mismatches_after, r.refinement.compared_after, r.refinement.fixed,
+                   r.refinement.broken, r.validations.size());
       for (std::size_t b = 0; b < r.validations.size(); ++b) {
         const BlobValidation& v = r.validations[b];
         std::fprintf(stderr,

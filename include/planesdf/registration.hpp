@@ -91,6 +91,10 @@ struct InPlaneSearch {
   double yaw_step_deg = 0.5;  ///< degrees, fine search
   int max_cells = 40000;      ///< source cells scored per candidate (evenly subsampled)
   int min_compared = 50;      ///< fewer cells observed in both: no refinement
+  /// The session's drift (design.md): changed objects absorb their rings and a best candidate
+  /// may pass the paired test. A pair refined after the drift looks for a residual: plain
+  /// shares and the count tests only.
+  bool session_drift = false;
 };
 
 /// What refineInPlane found. The correction is a yaw `dyaw` about `pivot` followed by a shift
@@ -107,26 +111,33 @@ struct InPlaneRefinement {
   int mismatches_after = 0;
   double mean_abs_before = 0.0;  ///< mean |H - H'| (m, each term capped at 4 delta_h)
   double mean_abs_after = 0.0;
+  int fixed = 0;   ///< cells the best candidate makes agree that mismatched (set when searched)
+  int broken = 0;  ///< cells the best candidate makes mismatch that agreed
 };
 
-/// Refines the in-plane part of `T_target_source_local` so that cells observed in both height
-/// maps agree best. The samples are the source cells (evenly subsampled) whose nearest target
-/// cell under the initial T is observed; search over a yaw (about the centre of the samples) and
-/// a shift (du, dv) within the window of `search`, coarse to fine: 2-cell and 1-degree steps over
-/// the whole window on at most 6000 samples (a sample agrees there when a target cell within one
-/// cell agrees), then 1-cell and yaw_step steps around the coarse best and around the initial T
-/// on all samples. A sample mismatches when its nearest target cell differs by more than
-/// cfg.delta_h; one that mismatched under the initial T and is moved off the observed target
-/// still does, so differences cannot hide in unobserved areas. The cost of a candidate counts the
-/// mismatches with each object's share capped at half its samples (a sample belongs to the
-/// source object it lies on, else to the target object it falls on under the initial T, else to
-/// the uncapped background): a moved object mismatches wholly at the right T, and a candidate
-/// that drags the map onto its new place must not win against the static objects. Ties are
-/// broken by the mean capped absolute difference, then by the smaller motion. Model selection:
-/// T becomes Δ * T only when the best candidate lies inside the window (a best on its border is
-/// a moved object pulling, not drift) and removes at least 20 % (or 3 sigma) of the initial
-/// mismatches and at least 20 cells. Empty or non-overlapping maps: nothing is done.
-/// Does not read cfg.refine_inplane (the caller decides whether to refine).
+/// Refines the in-plane part of `T_target_source_local` so that cells observed in both height maps
+/// agree best. The samples are the source cells (evenly subsampled) whose nearest target cell under
+/// the initial T is observed; search over a yaw (about the centre of the samples) and a shift (du,
+/// dv) within the window of `search`, coarse to fine: 2-cell and 1-degree steps over the whole
+/// window on at most 6000 samples (a sample agrees there when a target cell within one cell
+/// agrees), then 1-cell and yaw_step steps around the coarse best and around the initial T on all
+/// samples. A sample mismatches when its nearest target cell differs by more than cfg.delta_h; one
+/// that mismatched under the initial T and is moved off the observed target still does, so
+/// differences cannot hide in unobserved areas. The cost of a candidate counts the mismatches with
+/// each object's share capped at half its samples (a sample belongs to the source object it lies
+/// on, else to the target object it falls on under the initial T, else to the uncapped background):
+/// a moved object mismatches wholly at the right T, and a candidate that drags the map onto its new
+/// place must not win against the static objects. With search.session_drift, background samples
+/// within max_shift of an object that mismatches in more than half its samples under the initial T
+/// count in that object's share (the crescents any shift sweeps onto a changed object are no
+/// evidence against the shift). Ties are broken by the mean capped absolute difference, then by the
+/// smaller motion. Model selection: T becomes Δ * T only when the best candidate lies inside the
+/// window (a best on its border is a moved object pulling, not drift) and removes at least 20 cells
+/// and either 20 % of the initial mismatches, or 3 sigma of their count, or (search.session_drift)
+/// 3 sigma of the paired test on the cells it flips ((fixed - broken) / sqrt(fixed + broken),
+/// counting a run of s cells as one event when the candidate moves the map s cells). Empty or
+/// non-overlapping maps: nothing is done. Does not read cfg.refine_inplane (the caller decides
+/// whether to refine).
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,
                                 const InPlaneSearch& search = InPlaneSearch{});

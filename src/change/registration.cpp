@@ -167,7 +167,8 @@ constexpr std::size_t kCoarseSamples = 6000;
 constexpr int kSensitiveRadius = 3;
 constexpr double kMinGainFraction = 0.2;
 /// ... or at least this many standard deviations of the initial mismatch count (a Poisson
-/// count): when real changes make most of the mismatches, a drift correction is still clear.
+/// count), or with InPlaneSearch::session_drift of the paired (McNemar) test on the cells the
+/// candidate flips: changed objects that mismatch at every T add no noise to that one.
 constexpr double kMinGainSigmas = 3.0;
 
 struct Sample {
@@ -175,6 +176,7 @@ struct Sample {
   float h;                  ///< source height
   bool mismatched = false;  ///< differs from the target under the initial T
   int group = 0;            ///< 0 background, else the object it belongs to (see refineInPlane)
+  bool ring = false;        ///< background near a changed object, in its group (absorbRings)
 };
 
 /// Mismatches a group (one object of either session) may add to a candidate's cost: each object
@@ -192,7 +194,8 @@ struct Groups {
 Groups groupsOf(const std::vector<Sample>& samples, std::size_t n_groups) {
   Groups g;
   g.cap.assign(n_groups, 0);
-  for (const Sample& smp : samples) ++g.cap[static_cast<std::size_t>(smp.group)];
+  for (const Sample& smp : samples)
+    if (!smp.ring) ++g.cap[static_cast<std::size_t>(smp.group)];
   for (std::size_t i = 1; i < n_groups; ++i) g.cap[i] = (g.cap[i] + 1) / 2;
   g.count.assign(n_groups, 0);
   return g;
@@ -429,6 +432,44 @@ void sensitiveFirst(std::vector<Sample>& samples, const HeightMap& tgt, double d
   std::stable_partition(samples.begin(), samples.end(), sensitive);
 }
 
+/// What a candidate flips against the initial T (placed as scorePlaced would, no slack):
+/// `fixed` samples mismatched there and agree here, `broken` agreed there and mismatch here;
+/// `run` is the mean distance the candidate moves a sample, in target cells.
+struct Flips {
+  int fixed = 0, broken = 0;
+  double run = 0.0;
+};
+
+Flips flips(const std::vector<Sample>& samples, const HeightMap& tgt, const Eigen::Vector2d& pivot,
+            double yaw, const Eigen::Vector2d& shift, double delta_h) {
+  const Placement placement = place(samples, tgt, pivot, yaw, shift);
+  const Eigen::Rotation2Dd R(yaw);
+  Flips f;
+  double moved = 0.0;
+  for (std::size_t i = 0; i < samples.size(); ++i) {
+    const Eigen::Vector2d d = samples[i].uv - pivot;
+    moved += (R * d + shift - d).norm();
+    const int x = placement.x[i], y = placement.y[i];
+    const float ht = tgt.inBounds(x, y) ? tgt.at(x, y) : kUnobserved;
+    if (ht == kUnobserved) continue;  // a mismatch stays one; an agreeing sample is not compared
+    const bool differs =
+        std::abs(static_cast<double>(ht) - static_cast<double>(samples[i].h)) > delta_h;
+    f.fixed += samples[i].mismatched && !differs;
+    f.broken += !samples[i].mismatched && differs;
+  }
+  f.run = samples.empty() ? 0.0 : moved / static_cast<double>(samples.size()) / tgt.cell_size;
+  return f;
+}
+
+/// The paired (McNemar) test of a candidate's flips: (fixed - broken) / sqrt(fixed + broken) in
+/// independent events. A candidate that moves the map by s cells moves every height edge by s
+/// cells, flipping runs of about s cells along it: one event per run, at least one cell.
+double pairedSigmas(const Flips& f) {
+  if (f.fixed + f.broken == 0) return 0.0;
+  const double run = std::max(1.0, f.run);
+  return (f.fixed - f.broken) / run / std::sqrt((f.fixed + f.broken) / run);
+}
+
 /// True when `a` is a strictly better cost than `b` (capped mismatches, then mean |diff|).
 bool better(const Score& a, const Score& b) {
   if (a.cost != b.cost) return a.cost < b.cost;
@@ -436,6 +477,75 @@ bool better(const Score& a, const Score& b) {
 }
 
 }  // namespace
+
+/// The group of source cell (x, y) as refineInPlane assigns it: the source object it lies on,
+/// else the target object the initial T puts it on (after the n_src source objects), else 0.
+int groupOfCell(int x, int y, const HeightMap& src, const ObjectMap& src_objects,
+                const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T) {
+  const int g = src_objects.at(x, y);
+  if (g > 0) return g;
+  const Eigen::Vector2d c = src.cellCenter(x, y);
+  const Eigen::Vector2i tc = tgt.cellOf((T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>());
+  if (!tgt.inBounds(tc.x(), tc.y())) return 0;
+  const int t = tgt_objects.at(tc.x(), tc.y());
+  return t > 0 ? src_objects.numObjects() + t : 0;
+}
+
+/// Background samples within `radius` cells of a changed object (one that mismatches in more
+/// than half its samples under the initial T) join its group as its ring. Such an object
+/// mismatches wherever a candidate puts the map; the background a shift sweeps onto or off it is
+/// part of that change, not evidence against the shift, and its group is already over its cap.
+/// Without rings every candidate but the initial T pays the crescent each changed object sweeps
+/// (design.md, "In-plane refinement"). `cells` holds each sample's source cell index.
+void absorbRings(std::vector<Sample>& samples, const std::vector<std::size_t>& cells,
+                 std::size_t n_groups, const HeightMap& src, const ObjectMap& src_objects,
+                 const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T, int radius) {
+  std::vector<int> size(n_groups, 0), mismatched(n_groups, 0);
+  for (const Sample& smp : samples) {
+    ++size[static_cast<std::size_t>(smp.group)];
+    mismatched[static_cast<std::size_t>(smp.group)] += smp.mismatched ? 1 : 0;
+  }
+  std::vector<char> changed(n_groups, 0);
+  bool any = false;
+  for (std::size_t g = 1; g < n_groups; ++g) {
+    changed[g] = mismatched[g] > (size[g] + 1) / 2;
+    any = any || changed[g];
+  }
+  if (!any) return;
+  // Breadth-first from the changed objects' cells through the background; other objects' cells
+  // are neither entered nor reassigned.
+  std::vector<int> owner(src.numCells(), 0), dist(src.numCells(), -1);
+  std::vector<std::size_t> queue;
+  for (int y = 0; y < src.height; ++y)
+    for (int x = 0; x < src.width; ++x) {
+      const int g = groupOfCell(x, y, src, src_objects, tgt, tgt_objects, T);
+      if (g == 0) continue;
+      const std::size_t i = src.index(x, y);
+      owner[i] = g;
+      dist[i] = 0;
+      if (changed[static_cast<std::size_t>(g)]) queue.push_back(i);
+    }
+  for (std::size_t q = 0; q < queue.size(); ++q) {
+    const std::size_t i = queue[q];
+    if (dist[i] >= radius) continue;
+    const int x = static_cast<int>(i % static_cast<std::size_t>(src.width));
+    const int y = static_cast<int>(i / static_cast<std::size_t>(src.width));
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        if (!src.inBounds(x + dx, y + dy)) continue;
+        const std::size_t n = src.index(x + dx, y + dy);
+        if (dist[n] >= 0) continue;
+        dist[n] = dist[i] + 1;
+        owner[n] = owner[i];
+        queue.push_back(n);
+      }
+  }
+  for (std::size_t k = 0; k < samples.size(); ++k)
+    if (samples[k].group == 0 && owner[cells[k]] > 0) {
+      samples[k].group = owner[cells[k]];
+      samples[k].ring = true;
+    }
+}
 
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,
@@ -505,6 +615,7 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   const int n_src_objects = src_objects.numObjects();
   const auto n_groups = static_cast<std::size_t>(1 + n_src_objects + tgt_objects.numObjects());
   std::vector<Sample> samples;
+  std::vector<std::size_t> cells;  // each sample's source cell
   samples.reserve(std::min(observed, cap) + 1);
   std::size_t k = 0;
   Eigen::Vector2d lo(std::numeric_limits<double>::infinity(),
@@ -519,19 +630,18 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
       if (st < 0 || (st == 1 && isolated(x, y))) continue;
       const Eigen::Vector2d c = src.cellCenter(x, y);
       const Eigen::Vector2d uv = (T * Eigen::Vector3d(c.x(), c.y(), 0.0)).head<2>();
-      int group = src_objects.at(x, y);
-      if (group == 0) {
-        const Eigen::Vector2i tc = tgt.cellOf(uv);
-        const int t = tgt_objects.at(tc.x(), tc.y());  // in bounds: st >= 0
-        if (t > 0) group = n_src_objects + t;
-      }
+      const int group = groupOfCell(x, y, src, src_objects, tgt, tgt_objects, T);
       samples.push_back({uv, h, st == 1, group});
+      cells.push_back(src.index(x, y));
       lo = lo.cwiseMin(uv);
       hi = hi.cwiseMax(uv);
     }
   }
   const Eigen::Vector2d pivot = 0.5 * (lo + hi);
   out.pivot = pivot;
+  if (search.session_drift)
+    absorbRings(samples, cells, n_groups, src, src_objects, tgt, tgt_objects, T,
+                static_cast<int>(std::ceil(search.max_shift / src.cell_size - 1e-9)));
   const Groups groups = groupsOf(samples, n_groups);
 
   const Score initial = scorePlaced(arraysOf(samples), groups, tgt,
@@ -655,12 +765,17 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   if (onBorder(fine.du, step, search.max_shift) || onBorder(fine.dv, step, search.max_shift) ||
       onBorder(fine.yaw_deg, ystep, search.max_yaw_deg))
     return out;
-  // Model selection: keep the initial T unless the evidence is clear — the best candidate must
-  // remove at least kMinGainFraction of the initial mismatches and kMinGainCells cells (changed
-  // objects mismatch wherever they are put; only drift makes a shift pay off substantially).
+  // Model selection: keep the initial T unless the evidence is clear: the best candidate must
+  // remove kMinGainCells cells, and kMinGainFraction of the initial mismatches or kMinGainSigmas
+  // of their count or of the paired test (design.md, "In-plane refinement").
+  const Flips f = flips(samples, tgt, pivot, fine.yaw_deg * kPi / 180.0,
+                        Eigen::Vector2d(fine.du, fine.dv), cfg.delta_h);
+  out.fixed = f.fixed;
+  out.broken = f.broken;
   const int gain = initial.mismatches - best.mismatches;
+  const bool paired = search.session_drift && pairedSigmas(f) >= kMinGainSigmas;
   if (gain < kMinGainCells || (gain < kMinGainFraction * initial.mismatches &&
-                               gain < kMinGainSigmas * std::sqrt(initial.mismatches)))
+                               gain < kMinGainSigmas * std::sqrt(initial.mismatches) && !paired))
     return out;
 
   out.applied = true;

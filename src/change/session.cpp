@@ -81,12 +81,14 @@ std::pair<Pose, Eigen::Vector3d> horizontalCorrection(
   }
   std::vector<Pose> T(horizontal.size());
   std::vector<InPlaneRefinement> r(horizontal.size());
+  InPlaneSearch search;
+  search.session_drift = true;
   parallelFor(static_cast<int>(horizontal.size()), cfg.threads, [&](int k) {
     const PlaneMatch& m = forward_matches[horizontal[static_cast<std::size_t>(k)]];
     T[k] = m.T_target_source_local;
     r[k] = refineInPlane(maps(true, m.source_id).heights, maps(true, m.source_id).objects,
                          maps(false, m.target_id).heights, maps(false, m.target_id).objects, T[k],
-                         cfg);
+                         cfg, search);
   });
   Pose correction = Pose::Identity();
   Eigen::Vector3d anchor = Eigen::Vector3d::Zero();

@@ -87,19 +87,19 @@ TEST(Demo, TabletopFindsEveryChangeAndWritesItsReport) {
   EXPECT_GE(r["f1"].get<double>(), 0.9);
 }
 
-TEST(Demo, OtherSeedsRecoverTheirDriftDespiteAMovedObject) {
-  // Seeds 2 and 4: a 1 cm / 1 degree localisation error between the sessions, and a moved book
-  // stack (seed 2) that the in-plane refinement used to follow (4 degrees, 4 cm: every static
-  // object became a change, W 13). The capped per-object cost and the search near the initial
-  // transform find the drift instead. Today: seed 2 F1 0.90, W 0; seed 4 F1 0.98, W 1.
-  for (const int seed : {2, 4}) {
+TEST(Demo, OtherSeedsRecoverTheirDriftDespiteMovedAndChangedObjects) {
+  // Seeds 2-5: 1 cm / 1 degree of localisation error between the sessions. Seed 2 has a moved
+  // book stack the refinement must not follow; on seeds 3 and 5 changed objects make most of the
+  // table's mismatches, and only the session drift's rings and paired test find the drift
+  // (docs/design.md). Measured F1 0.99, 0.99, 0.98, 0.99, W 0 on each.
+  for (const int seed : {2, 3, 4, 5}) {
     SCOPED_TRACE(seed);
     TempDir tmp;
     const nlohmann::json j = runDemo("--seed " + std::to_string(seed), tmp);
     ASSERT_FALSE(j.is_null());
     EXPECT_EQ(j["missed"].get<int>(), 0);
-    EXPECT_LE(j["wrong"].get<int>(), 1);
-    EXPECT_GE(j["f1"].get<double>(), 0.85);
+    EXPECT_EQ(j["wrong"].get<int>(), 0);
+    EXPECT_GE(j["f1"].get<double>(), 0.95);
   }
 }
 

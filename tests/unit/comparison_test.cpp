@@ -535,6 +535,71 @@ TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {
   }
 }
 
+TEST(HeightCompare, ADriftAmongLargeChangesIsFoundByTheCellsItFlips) {
+  // A removed (900 cells) and an added box (576) mismatch wherever the map is put; three static
+  // 8x8 boxes drifted by one cell along u and v mismatch in two 15-cell L shapes each (90 cells).
+  // The drift removes 6 % of the mismatches, 2.3 sigma of their count, too little for the count
+  // tests. It flips those 90 cells and the added box's two 47-cell L shapes, one each way: 6.6
+  // sigma of the paired test that the session's drift uses. Without drift nothing is refined.
+  const Config cfg;
+  const std::vector<Box> statics{
+      {6, 40, 8, 8, 0.05f}, {22, 44, 8, 8, 0.06f}, {44, 40, 8, 8, 0.07f}};
+  std::vector<Box> src_scene = statics, tgt_scene = statics;
+  src_scene.push_back({2, 2, 30, 30, 0.08f});
+  tgt_scene.push_back({34, 2, 24, 24, 0.12f});
+  const HeightMap src = render(src_scene);
+  const HeightMap tgt = render(tgt_scene, yawShift(0.0, kCell, kCell));
+  Pose T_count = Pose::Identity();
+  const InPlaneRefinement counted = refineInPlane(src, tgt, T_count, cfg);
+  EXPECT_FALSE(counted.applied);
+  EXPECT_EQ(counted.fixed, 3 * 30 + 47);
+  InPlaneSearch drift;
+  drift.session_drift = true;
+  Pose T = Pose::Identity();
+  const InPlaneRefinement r = refineInPlane(src, tgt, T, cfg, drift);
+  EXPECT_EQ(r.mismatches_before, 900 + 576 + 3 * 30);
+  EXPECT_TRUE(r.applied);
+  EXPECT_NEAR(r.du, kCell, 1e-9);
+  EXPECT_NEAR(r.dv, kCell, 1e-9);
+  EXPECT_EQ(r.fixed, 3 * 30 + 47);
+  EXPECT_EQ(r.broken, 47);
+  // The change is what it is without drift: the two boxes, no ring around the static ones.
+  const HeightChange hc = detectHeightChange(src, tgt, computeObjectMap(src, cfg), T, cfg);
+  const HeightChange no_drift =
+      detectHeightChange(src, render(tgt_scene), computeObjectMap(src, cfg), Pose::Identity(), cfg);
+  EXPECT_GE(no_drift.raw.count(), 900u + 500u);
+  EXPECT_EQ(hc.raw.count(), no_drift.raw.count());
+
+  Pose T0 = Pose::Identity();
+  const InPlaneRefinement r0 = refineInPlane(src, render(tgt_scene), T0, cfg, drift);
+  EXPECT_FALSE(r0.applied);
+  EXPECT_TRUE(T0.isApprox(Pose::Identity()));
+}
+
+TEST(HeightCompare, ChangedObjectsDoNotHoldTheMapAgainstItsDrift) {
+  // Two static 8x8 boxes drifted by one cell along u and v (60 cells fixed by the drift) beside
+  // four 12x12 boxes added in the target. An added box mismatches wherever the map is put; a shift
+  // moves 23 background cells onto it. Counted as background, those 4 x 23 cells would outweigh
+  // the statics and keep the drift; as the added boxes' rings (in their groups, already over their
+  // caps) they cost nothing, and the drift is found.
+  const Config cfg;
+  const std::vector<Box> statics{{6, 40, 8, 8, 0.05f}, {44, 44, 8, 8, 0.07f}};
+  std::vector<Box> tgt_scene = statics;
+  for (const auto& [x, y] : std::vector<std::pair<int, int>>{{4, 4}, {24, 4}, {44, 4}, {24, 24}})
+    tgt_scene.push_back({x, y, 12, 12, 0.1f});
+  const HeightMap src = render(statics);
+  const HeightMap tgt = render(tgt_scene, yawShift(0.0, kCell, kCell));
+  InPlaneSearch drift;
+  drift.session_drift = true;
+  Pose T = Pose::Identity();
+  const InPlaneRefinement r = refineInPlane(src, tgt, T, cfg, drift);
+  EXPECT_EQ(r.mismatches_before, 4 * 144 + 2 * 30);
+  EXPECT_TRUE(r.applied);
+  EXPECT_NEAR(r.du, kCell, 1e-9);
+  EXPECT_NEAR(r.dv, kCell, 1e-9);
+  EXPECT_EQ(r.fixed - r.broken, 2 * 30);
+}
+
 TEST(HeightCompare, YawOfTwoDegreesIsRemovedByRefinement) {
   const Config cfg;
   const std::vector<Box> scene{
