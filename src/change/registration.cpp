@@ -476,8 +476,6 @@ bool better(const Score& a, const Score& b) {
   return a.mean_abs < b.mean_abs - 1e-9;
 }
 
-}  // namespace
-
 /// The group of source cell (x, y) as refineInPlane assigns it: the source object it lies on,
 /// else the target object the initial T puts it on (after the n_src source objects), else 0.
 int groupOfCell(int x, int y, const HeightMap& src, const ObjectMap& src_objects,
@@ -496,7 +494,7 @@ int groupOfCell(int x, int y, const HeightMap& src, const ObjectMap& src_objects
 /// mismatches wherever a candidate puts the map; the background a shift sweeps onto or off it is
 /// part of that change, not evidence against the shift, and its group is already over its cap.
 /// Without rings every candidate but the initial T pays the crescent each changed object sweeps
-/// (design.md, "In-plane refinement"). `cells` holds each sample's source cell index.
+/// (design.md, "Rings of changed objects"). `cells` holds each sample's source cell index.
 void absorbRings(std::vector<Sample>& samples, const std::vector<std::size_t>& cells,
                  std::size_t n_groups, const HeightMap& src, const ObjectMap& src_objects,
                  const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T, int radius) {
@@ -546,6 +544,8 @@ void absorbRings(std::vector<Sample>& samples, const std::vector<std::size_t>& c
       samples[k].ring = true;
     }
 }
+
+}  // namespace
 
 InPlaneRefinement refineInPlane(const HeightMap& src, const HeightMap& tgt,
                                 Pose& T_target_source_local, const Config& cfg,
@@ -767,7 +767,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
     return out;
   // Model selection: keep the initial T unless the evidence is clear: the best candidate must
   // remove kMinGainCells cells, and kMinGainFraction of the initial mismatches or kMinGainSigmas
-  // of their count or of the paired test (design.md, "In-plane refinement").
+  // of their count or of the paired test (design.md, "In-plane refinement", "The session's
+  // drift passes a paired test").
   const Flips f = flips(samples, tgt, pivot, fine.yaw_deg * kPi / 180.0,
                         Eigen::Vector2d(fine.du, fine.dv), cfg.delta_h);
   out.fixed = f.fixed;
