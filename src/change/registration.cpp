@@ -498,15 +498,14 @@ int groupOfCell(int x, int y, const HeightMap& src, const ObjectMap& src_objects
 void absorbRings(std::vector<Sample>& samples, const std::vector<std::size_t>& cells,
                  std::size_t n_groups, const HeightMap& src, const ObjectMap& src_objects,
                  const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T, int radius) {
-  std::vector<int> size(n_groups, 0), mismatched(n_groups, 0);
-  for (const Sample& smp : samples) {
-    ++size[static_cast<std::size_t>(smp.group)];
-    mismatched[static_cast<std::size_t>(smp.group)] += smp.mismatched ? 1 : 0;
-  }
+  const Groups core = groupsOf(samples, n_groups);  // no rings yet: each object's own cap
+  std::vector<int> mismatched(n_groups, 0);
+  for (const Sample& smp : samples)
+    if (smp.mismatched) ++mismatched[static_cast<std::size_t>(smp.group)];
   std::vector<char> changed(n_groups, 0);
   bool any = false;
   for (std::size_t g = 1; g < n_groups; ++g) {
-    changed[g] = mismatched[g] > (size[g] + 1) / 2;
+    changed[g] = mismatched[g] > core.cap[g];
     any = any || changed[g];
   }
   if (!any) return;
