@@ -616,6 +616,27 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
   return {b.min().array() - margin, b.max().array() + margin};
 }
 
+/// Height over horizontal `q` up to which a wall's band leaves what is above q to q: its band,
+/// or, when another horizontal plane over q's extent lies at most twice the band above it, up to
+/// that plane's slab (design.md, "A shelf's compartment is its board's"). The strip between the
+/// band's top and the next board holds only the tips of q's tall objects and the shelf's back.
+double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, const Config& cfg) {
+  const Eigen::Vector3d origin = q.toWorld(Eigen::Vector3d::Zero());
+  double top = cfg.fuse_band;
+  double next = std::numeric_limits<double>::infinity();
+  for (const PlaneSdf& ps : map_planes) {
+    const Plane& r = ps.plane;
+    if (r.id == q.id || r.extent.isEmpty() || r.orientation != Plane::Orientation::Horizontal ||
+        r.normal.dot(q.normal) < kParallelPlaneCos)
+      continue;
+    const double above = -r.signedDistance(origin);
+    if (above > cfg.fuse_band && above <= 2.0 * cfg.fuse_band && extentsOverlap(q, r))
+      next = std::min(next, above);
+  }
+  if (std::isfinite(next)) top = std::max(top, next - detail::kMaxSlabThickness);
+  return top;
+}
+
 /// What the other planes of the map claim of `plane`'s band (unknown there):
 ///  * the surface of a non-parallel plane (a wall in a table's band, a table in a wall's band) is
 ///    structure, within kOtherPlaneDistance of it; for room structure (a vertical plane at least
@@ -625,7 +646,8 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
 ///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
 ///    floor by a wall), or when `plane` is horizontal and that one is a separate surface above
 ///    it (a desk a few cm above a lower desk's plane; not a box's top on this table); with
-///    that plane's slab, up to detail::kMaxSlabThickness below it (a board's underside);
+///    that plane's slab, up to detail::kMaxSlabThickness below it (a board's underside); on a
+///    wall, up to the next board over it (compartmentTop);
 ///  * the underside of a horizontal plane over `plane` just above its band (up to
 ///    detail::kMaxSlabThickness below that plane), within that plane's extent: the next board
 ///    of a shelf.
@@ -662,8 +684,9 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
                         grown(q.extent, kOtherPlaneMargin)});
     const bool owns = vertical ? isStructure(plane) : above > 0.0 && !extentsOverlap(plane, q);
     if (owns)  // with its slab: a board's underside, up to kMaxSlabThickness below its top
-      claims.push_back(
-          {&q, -detail::kMaxSlabThickness, cfg.fuse_band, grown(q.extent, cfg.support_margin)});
+      claims.push_back({&q, -detail::kMaxSlabThickness,
+                        vertical ? compartmentTop(q, map_planes, cfg) : cfg.fuse_band,
+                        grown(q.extent, cfg.support_margin)});
   }
   return claims;
 }

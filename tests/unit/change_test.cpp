@@ -795,6 +795,47 @@ TEST(PlaneMaps, AShelfBoardsSlabInAWallsBandIsTheBoards) {
   EXPECT_GT(objectCellsBetween(alone, -0.30, -0.24), 500);
 }
 
+/// A shelf board in the x-y plane (normal +y) whose top is at v = `top`, 0.8 x 0.3 m.
+Plane boardAt(int id, double top) {
+  Plane board;
+  board.id = id;
+  board.normal = Eigen::Vector3d::UnitY();
+  board.offset = -top;
+  board.frame_origin = Eigen::Vector3d(0.0, top, 0.0);
+  board.frame_axes.col(0) = Eigen::Vector3d::UnitX();
+  board.frame_axes.col(1) = Eigen::Vector3d::UnitZ();
+  board.frame_axes.col(2) = board.normal;
+  board.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.4, 0.0), Eigen::Vector2d(0.4, 0.3));
+  return board;
+}
+
+TEST(PlaneMaps, AShelfCompartmentAboveABoardsBandIsTheBoards) {
+  // A wall (its band along +z, v up) behind a board at v = -0.2 and the next one 42 cm higher.
+  // Between the lower board's band (to v = 0.1) and the upper one's slab (from 0.17) the wall's
+  // band sees the shelf's back panel, 1.5 cm thick, and the tip of a bottle on the lower board.
+  const auto field = [](double x, double v) {
+    if (v >= 0.10 && v < 0.14 && x >= 0.0 && x < 0.06) return 0.10;  // the bottle's tip
+    if (v >= 0.10 && v < 0.17) return 0.015;                         // the back panel
+    return 0.0;
+  };
+  PlaneSdf wall = floorWith(field);
+  wall.plane.orientation = Plane::Orientation::Vertical;
+  const Config cfg;
+  const auto strip = [](const PlaneMaps& m) { return objectCellsBetween(m, 0.105, 0.165); };
+  const PlaneSdf lower(boardAt(2, -0.2), TsdfVolume(cfg));
+  const PlaneMaps alone = computePlaneMaps(wall, {wall, lower}, cfg);
+  EXPECT_GT(strip(alone), 1000);
+  // With the board above, the compartment up to its slab is the lower board's.
+  const PlaneMaps shelf =
+      computePlaneMaps(wall, {wall, lower, PlaneSdf(boardAt(3, 0.22), TsdfVolume(cfg))}, cfg);
+  EXPECT_EQ(strip(shelf), 0);
+  // A plane more than twice the band higher bounds no compartment (a shelf over a desk).
+  const PlaneSdf low(boardAt(2, -0.45), TsdfVolume(cfg));
+  const PlaneMaps far =
+      computePlaneMaps(wall, {wall, low, PlaneSdf(boardAt(3, 0.22), TsdfVolume(cfg))}, cfg);
+  EXPECT_EQ(strip(far), strip(alone));
+}
+
 TEST(PlaneMaps, WhatStandsBeyondThePlaneExtentIsUnknown) {
   // The plane's inliers end at y = 0.2. A box stands on it, one within the support margin
   // (0.1 m) beyond its edge, and one 15 cm beyond (a shelf or a wall in its unbounded band).
