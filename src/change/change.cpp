@@ -622,7 +622,6 @@ Eigen::AlignedBox2d grown(const Eigen::AlignedBox2d& b, double margin) {
 /// band's top and the next board holds only the tips of q's tall objects and the shelf's back.
 double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, const Config& cfg) {
   const Eigen::Vector3d origin = q.toWorld(Eigen::Vector3d::Zero());
-  double top = cfg.fuse_band;
   double next = std::numeric_limits<double>::infinity();
   for (const PlaneSdf& ps : map_planes) {
     const Plane& r = ps.plane;
@@ -633,8 +632,8 @@ double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, c
     if (above > cfg.fuse_band && above <= 2.0 * cfg.fuse_band && extentsOverlap(q, r))
       next = std::min(next, above);
   }
-  if (std::isfinite(next)) top = std::max(top, next - detail::kMaxSlabThickness);
-  return top;
+  return std::isfinite(next) ? std::max(cfg.fuse_band, next - detail::kMaxSlabThickness)
+                             : cfg.fuse_band;
 }
 
 /// What the other planes of the map claim of `plane`'s band (unknown there):

@@ -765,36 +765,6 @@ TEST(PlaneMaps, AWallsNoisySurfaceAndTheBandBehindItAreStructureNotObjects) {
   EXPECT_EQ(objectCellsBetween(with_face, 0.26, 0.28), objectCellsBetween(alone, 0.26, 0.28));
 }
 
-TEST(PlaneMaps, AShelfBoardsSlabInAWallsBandIsTheBoards) {
-  // A wall (here in the x-y plane, its band along +z) with a board sticking out of it: the
-  // board's top at v = 0.20, its 2 cm slab and the splat below reaching down to v = 0.155. A 6 cm
-  // box hangs on the wall 45 cm lower.
-  const auto field = [](double, double v) {
-    if (v >= 0.155 && v < 0.20) return 0.29;
-    if (v >= -0.30 && v < -0.24) return 0.06;
-    return 0.0;
-  };
-  PlaneSdf wall = floorWith(field);
-  wall.plane.orientation = Plane::Orientation::Vertical;  // 1 m long: room structure
-  Plane board;
-  board.id = 2;
-  board.normal = Eigen::Vector3d::UnitY();
-  board.offset = -0.20;
-  board.frame_origin = Eigen::Vector3d(0.0, 0.20, 0.0);
-  board.frame_axes.col(0) = Eigen::Vector3d::UnitX();
-  board.frame_axes.col(1) = Eigen::Vector3d::UnitZ();
-  board.frame_axes.col(2) = board.normal;
-  board.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.4, 0.0), Eigen::Vector2d(0.4, 0.3));
-  const Config cfg;
-  const PlaneMaps alone = computePlaneMaps(wall, {wall}, cfg);
-  EXPECT_GT(objectCellsBetween(alone, 0.155, 0.20), 500);
-  const PlaneMaps with_board =
-      computePlaneMaps(wall, {wall, PlaneSdf(board, TsdfVolume(cfg))}, cfg);
-  EXPECT_EQ(objectCellsBetween(with_board, 0.155, 0.20), 0);
-  EXPECT_EQ(objectCellsBetween(with_board, -0.30, -0.24), objectCellsBetween(alone, -0.30, -0.24));
-  EXPECT_GT(objectCellsBetween(alone, -0.30, -0.24), 500);
-}
-
 /// A shelf board in the x-y plane (normal +y) whose top is at v = `top`, 0.8 x 0.3 m.
 Plane boardAt(int id, double top) {
   Plane board;
@@ -807,6 +777,28 @@ Plane boardAt(int id, double top) {
   board.frame_axes.col(2) = board.normal;
   board.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.4, 0.0), Eigen::Vector2d(0.4, 0.3));
   return board;
+}
+
+TEST(PlaneMaps, AShelfBoardsSlabInAWallsBandIsTheBoards) {
+  // A wall (here in the x-y plane, its band along +z) with a board sticking out of it: the
+  // board's top at v = 0.20, its 2 cm slab and the splat below reaching down to v = 0.155. A 6 cm
+  // box hangs on the wall 45 cm lower.
+  const auto field = [](double, double v) {
+    if (v >= 0.155 && v < 0.20) return 0.29;
+    if (v >= -0.30 && v < -0.24) return 0.06;
+    return 0.0;
+  };
+  PlaneSdf wall = floorWith(field);
+  wall.plane.orientation = Plane::Orientation::Vertical;  // 1 m long: room structure
+  const Plane board = boardAt(2, 0.20);
+  const Config cfg;
+  const PlaneMaps alone = computePlaneMaps(wall, {wall}, cfg);
+  EXPECT_GT(objectCellsBetween(alone, 0.155, 0.20), 500);
+  const PlaneMaps with_board =
+      computePlaneMaps(wall, {wall, PlaneSdf(board, TsdfVolume(cfg))}, cfg);
+  EXPECT_EQ(objectCellsBetween(with_board, 0.155, 0.20), 0);
+  EXPECT_EQ(objectCellsBetween(with_board, -0.30, -0.24), objectCellsBetween(alone, -0.30, -0.24));
+  EXPECT_GT(objectCellsBetween(alone, -0.30, -0.24), 500);
 }
 
 TEST(PlaneMaps, AShelfCompartmentAboveABoardsBandIsTheBoards) {
