@@ -52,9 +52,17 @@ int runDetect(const DetectArgs& args) {
       for (std::size_t b = 0; b < r.validations.size(); ++b) {
         const BlobValidation& v = r.validations[b];
         std::fprintf(stderr,
-                     "    blob %zu: %d cells, %s, similarity %.3f (%d of %d key voxels scored)\n",
+                     "    blob %zu: %d cells%s, %s, similarity %.3f (%d of %d key voxels scored)",
                      b, b < r.change.blobs.size() ? r.change.blobs[b].area : -1,
+                     b < r.change.blobs.size() && r.change.blobs[b].partial ? " (sliver)" : "",
                      toString(v.verdict), v.mean_similarity, v.scored, v.key_voxels);
+        // How it compares with the other map's objects it lands on (sameInPlace).
+        if (b < r.in_place.size() && r.in_place[b].target_cells > 0) {
+          const InPlaceMatch& m = r.in_place[b];
+          std::fprintf(stderr, "; on %d target cells: IoU %.2f, shift %.1f of %.1f cm, shape %.2f",
+                       m.target_cells, m.overlap, m.shift * 100, m.size * 100, m.shape_distance);
+        }
+        std::fprintf(stderr, "\n");
       }
     }
   std::printf("%zu changes (maps: %.0f ms, detect: %.0f ms, outputs: %.0f ms) -> %s\n",

@@ -242,7 +242,8 @@ struct CandidateChange {
   ChangeRegion region;                          ///< in the source map
   int target_plane_id = -1;                     ///< plane of the other map it was compared with
   std::vector<Eigen::Vector2i> target_columns;  ///< its cells carried into the target grid
-  /// Fraction of its (mapped) cells that land on an object of the target's object map.
+  /// Fraction of its (mapped) cells that land on an object of the target's object map, of
+  /// which it is not a sliver (sliverOf: a large object it covers little of is structure).
   double target_object_overlap = 0.0;
   /// The target objects it overlaps, as a region of the target map (whole object columns above
   /// h_obj / 2); empty when it overlaps none.

@@ -1132,6 +1132,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // standing inside the old footprint now: they replaced it, beside whatever the sliver's own
     // cells land on, and the whole old object is gone (design.md, "Replaced inside the
     // footprint").
+    bool footprint_inside = false;
     if (blob.partial && (cand.small_move || val.verdict == BlobValidation::Verdict::Changed)) {
       std::vector<std::size_t> covered;
       const std::map<int, int> inside =
@@ -1142,6 +1143,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       // Each of those objects stands at least half inside the object this sliver is part of:
       // the replacement is on the object's footprint, whatever of it the sliver's own cells hit.
       if (!inside.empty()) {
+        footprint_inside = true;
         cand.target_object_overlap = 1.0;
         takeWholeObject(!cand.small_move);
       }
@@ -1168,13 +1170,19 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       // of (sliverOf: a shelf in a wall's band), only the cells it lands on.
       std::vector<std::size_t> flat, partial;
       std::set<int> whole;
+      int on_whole = 0;
       for (const auto& [label, landed] : target_labels) {
         if (!sliverOf(landed, ot.object(label).area, cfg.blob_min_overlap, large_cells)) {
           whole.insert(label);
+          on_whole += landed;
           const auto& lc = target_label_cells()[static_cast<std::size_t>(label)];
           flat.insert(flat.end(), lc.begin(), lc.end());
         }
       }
+      // Landing on a sliver of a larger object (a panel the old object hid) is landing on
+      // structure, not on an object that took its place (design.md, "Landing on structure").
+      if (!footprint_inside)
+        cand.target_object_overlap = static_cast<double>(on_whole) / blob.cells.size();
       for (const std::size_t c : landed_cells)
         if (whole.count(ot.labels[c]) == 0) partial.push_back(c);
       std::sort(partial.begin(), partial.end());

@@ -1074,6 +1074,43 @@ TEST(ComparePlanePair, AnObjectStandingInsideAChangedSliversOldFootprintReplaced
   }
 }
 
+TEST(ComparePlanePair, AnObjectGoneFromALargePanelLandsOnStructureNotOnAReplacement) {
+  // A shelf's back panel 1.5 cm in front of its wall (an object: above h_obj, 60 x 60 cm, larger
+  // than blob_large_area) with a 10 cm box on it, then the panel alone: the box's footprint
+  // lands on a sliver of the panel, which the box hid; the event is a removal. Without the
+  // panel, a 2 cm book of 12 x 12 cm left in the box's place stands on its footprint: a
+  // replacement.
+  const auto panel = [](double u, double v) {
+    return std::abs(u) < 0.3 && std::abs(v) < 0.3 ? 0.015 : 0.0;
+  };
+  const auto box = [](double u, double v) {
+    return std::abs(u - 0.1) < 0.05 && std::abs(v - 0.1) < 0.05 ? 0.10 : 0.0;
+  };
+  const auto book = [](double u, double v) {
+    return std::abs(u - 0.1) < 0.06 && std::abs(v - 0.1) < 0.06 ? 0.02 : 0.0;
+  };
+  const Config cfg;
+  ASSERT_GT(0.6 * 0.6, cfg.blob_large_area);
+  PlaneMatch match;
+  match.source_id = match.target_id = 0;
+  for (const bool on_panel : {true, false}) {
+    SCOPED_TRACE(on_panel);
+    const PlaneSdf before = floorWith([&](double u, double v) {
+      return on_panel ? std::max(box(u, v), panel(u, v)) : box(u, v);
+    });
+    const PlaneSdf after = on_panel ? floorWith(panel) : floorWith(book);
+    const PlaneMaps src = computePlaneMaps(before, {before}, cfg);
+    const PlaneMaps tgt = computePlaneMaps(after, {after}, cfg);
+    const std::vector<CandidateChange> out =
+        comparePlanePair(before, src, after, tgt, match, false, {}, {}, cfg, {}, nullptr);
+    ASSERT_EQ(out.size(), 1u);
+    EXPECT_EQ(out[0].target_object_overlap, on_panel ? 0.0 : 1.0);
+    const std::vector<ChangeEvent> events = assembleEvents(out, {}, cfg);
+    ASSERT_EQ(events.size(), 1u);
+    EXPECT_EQ(events[0].type, on_panel ? ChangeType::Removed : ChangeType::Replaced);
+  }
+}
+
 TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
   // A floor with a 10 cm box; points on the box top, on the floor and far above the band.
   const PlaneSdf floor = floorWith([](double u, double v) {
