@@ -1,1 +1,1 @@
-set(PLANESDF_TSDF_SOURCES tsdf_volume.cpp fusion.cpp organized_cloud.cpp)
+set(PLANESDF_TSDF_SOURCES tsdf_volume.cpp fusion.cpp depth_analysis.cpp block_allocation.cpp block_allocation_avx2.cpp voxel_kernel.cpp voxel_kernel_avx2.cpp integration.cpp splatting.cpp organized_cloud.cpp)
