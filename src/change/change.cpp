@@ -987,9 +987,8 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     std::vector<OwnedCell> ranges;          // its columns' height ranges (owner set once accepted)
     std::map<int, int> target_labels;       // target object label -> blob cells landing on it
     std::vector<std::size_t> landed_cells;  // target cells (row-major) on an object it lands on
-    int on_target_objects = 0;
-    int top_cells = 0;   // cells at the band's top
-    int top_on_top = 0;  // of those, landing near target cells at the band's top
+    int top_cells = 0;                      // cells at the band's top
+    int top_on_top = 0;                     // of those, landing near target cells at the band's top
     for (const Eigen::Vector2i& c : blob.cells) {
       const float h_src = hs.at(c.x(), c.y());
       const Eigen::Vector2d uv = hs.cellCenter(c.x(), c.y());
@@ -1005,7 +1004,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
         if (label > 0) {
           ++target_labels[label];
           landed_cells.push_back(ht.index(tc.x(), tc.y()));
-          ++on_target_objects;
         }
       }
       reg.columns.emplace_back(hs.i0 + c.x(), hs.j0 + c.y());
@@ -1020,8 +1018,14 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       ranges.push_back({c.x(), c.y(), -1, static_cast<float>(std::max(lo, floor_c)),
                         h_src + static_cast<float>(vs), static_cast<float>(floor_c)});
     }
+    // Landing on a sliver of a larger object (a panel the old object hid) is landing on
+    // structure, not on an object that took its place (design.md, "Landing on structure").
+    int on_whole_objects = 0;
+    for (const auto& [label, landed] : target_labels)
+      if (!sliverOf(landed, ot.object(label).area, cfg.blob_min_overlap, large_cells))
+        on_whole_objects += landed;
     cand.target_object_overlap =
-        blob.cells.empty() ? 0.0 : static_cast<double>(on_target_objects) / blob.cells.size();
+        blob.cells.empty() ? 0.0 : static_cast<double>(on_whole_objects) / blob.cells.size();
 
     BlobValidation val;
     if (!voxels.empty()) {
@@ -1132,7 +1136,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
     // standing inside the old footprint now: they replaced it, beside whatever the sliver's own
     // cells land on, and the whole old object is gone (design.md, "Replaced inside the
     // footprint").
-    bool footprint_inside = false;
     if (blob.partial && (cand.small_move || val.verdict == BlobValidation::Verdict::Changed)) {
       std::vector<std::size_t> covered;
       const std::map<int, int> inside =
@@ -1143,7 +1146,6 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       // Each of those objects stands at least half inside the object this sliver is part of:
       // the replacement is on the object's footprint, whatever of it the sliver's own cells hit.
       if (!inside.empty()) {
-        footprint_inside = true;
         cand.target_object_overlap = 1.0;
         takeWholeObject(!cand.small_move);
       }
@@ -1170,19 +1172,13 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       // of (sliverOf: a shelf in a wall's band), only the cells it lands on.
       std::vector<std::size_t> flat, partial;
       std::set<int> whole;
-      int on_whole = 0;
       for (const auto& [label, landed] : target_labels) {
         if (!sliverOf(landed, ot.object(label).area, cfg.blob_min_overlap, large_cells)) {
           whole.insert(label);
-          on_whole += landed;
           const auto& lc = target_label_cells()[static_cast<std::size_t>(label)];
           flat.insert(flat.end(), lc.begin(), lc.end());
         }
       }
-      // Landing on a sliver of a larger object (a panel the old object hid) is landing on
-      // structure, not on an object that took its place (design.md, "Landing on structure").
-      if (!footprint_inside)
-        cand.target_object_overlap = static_cast<double>(on_whole) / blob.cells.size();
       for (const std::size_t c : landed_cells)
         if (whole.count(ot.labels[c]) == 0) partial.push_back(c);
       std::sort(partial.begin(), partial.end());
