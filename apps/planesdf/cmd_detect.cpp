@@ -11,6 +11,28 @@
 #include "timing.hpp"
 
 namespace planesdf::cli {
+namespace {
+
+/// `detect -v`: each plane of a session map, with where it is and how far it reaches.
+void printPlanes(const char* session, const Map& map) {
+  for (const PlaneSdf& p : map.planes()) {
+    const Plane& q = p.plane;
+    const Eigen::Vector3d c =
+        q.toWorld(Eigen::Vector3d(q.extent.center().x(), q.extent.center().y(), 0.0));
+    const Eigen::Vector2d size = q.extent.isEmpty() ? Eigen::Vector2d(Eigen::Vector2d::Zero())
+                                                    : Eigen::Vector2d(q.extent.sizes());
+    std::fprintf(stderr,
+                 "%s plane %d: %s, normal (%+.2f %+.2f %+.2f), offset %+.3f m, centre (%+.2f "
+                 "%+.2f %+.2f), extent %.2f x %.2f m, %zu inliers\n",
+                 session, q.id,
+                 q.orientation == Plane::Orientation::Horizontal ? "horizontal" : "vertical",
+                 q.normal.x(), q.normal.y(), q.normal.z(), q.offset, c.x(), c.y(), c.z(), size.x(),
+                 size.y(), q.support);
+  }
+}
+
+}  // namespace
+
 int runDetect(const DetectArgs& args) {
   const Config cfg = resolveConfig(args.pipeline);
   const bool up_defaulted = upDefaulted(args.pipeline);
@@ -36,6 +58,10 @@ int runDetect(const DetectArgs& args) {
   writeChangeOutputs(args.out, set);
   const double write_ms = msSince(tw);
 
+  if (args.verbose) {
+    printPlanes("reference", reference);
+    printPlanes("current", current);
+  }
   if (args.verbose)
     for (const PlanePairResult& r : set.pairs) {
       std::fprintf(stderr,

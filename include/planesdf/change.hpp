@@ -371,9 +371,13 @@ constexpr double kInPlaceMinOverlap = 0.5;
 /// whose sides carry no key voxel), so nothing shows a change and assembleEvents drops it, unless
 /// the other direction has a candidate with 3D evidence (Changed) on its footprint. A candidate
 /// with 3D evidence keeps its verdict; a different object in the same place (replaced, swapped)
-/// differs in shape, a moved one in position.
+/// differs in shape, a moved one in position. Of a large target object it lands on a sliver of
+/// (structure: a shelf's back panel in a wall's band), only the part standing on its footprint
+/// above that structure counts (cfg.delta_h, blob_large_area, blob_min_overlap; design.md, "In
+/// place on structure").
 InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i>& cells,
-                         const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T);
+                         const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T,
+                         const Config& cfg);
 
 // --- outputs (DESIGN §3 "detect") ----------------------------------------------------------------
 

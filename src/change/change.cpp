@@ -511,27 +511,85 @@ bool InPlaceMatch::same() const {
          shift <= kInPlaceShiftFraction * size && shape_distance < kMovedShapeDistance;
 }
 
+namespace {
+
+/// The part of target object `label` that stands where a blob lands on a sliver of it (design.md,
+/// "In place on structure"): its cells higher than delta_h above the structure (its median
+/// height: most of a large object a blob covers a sliver of is the structure), 8-connected to
+/// such cells under the footprint. Empty when the footprint holds none: it landed on structure.
+std::vector<std::size_t> partStandingIn(const HeightMap& tgt, const ObjectMap& objects, int label,
+                                        const std::vector<char>& mapped, double delta_h) {
+  std::vector<float> heights;
+  std::vector<std::size_t> seeds;
+  for (std::size_t i = 0; i < objects.labels.size(); ++i) {
+    if (objects.labels[i] != label) continue;
+    heights.push_back(tgt.heights[i]);
+    if (mapped[i] != 0) seeds.push_back(i);
+  }
+  if (heights.empty()) return {};
+  const auto mid = heights.begin() + static_cast<std::ptrdiff_t>(heights.size() / 2);
+  std::nth_element(heights.begin(), mid, heights.end());
+  const float level = *mid + static_cast<float>(delta_h);
+  std::vector<char> in(tgt.numCells(), 0);
+  std::vector<std::size_t> part;
+  for (const std::size_t i : seeds)
+    if (tgt.heights[i] > level) {
+      in[i] = 1;
+      part.push_back(i);
+    }
+  for (std::size_t k = 0; k < part.size(); ++k) {  // grows while it is walked
+    const int x = static_cast<int>(part[k] % static_cast<std::size_t>(tgt.width));
+    const int y = static_cast<int>(part[k] / static_cast<std::size_t>(tgt.width));
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        if (!tgt.inBounds(x + dx, y + dy)) continue;
+        const std::size_t j = tgt.index(x + dx, y + dy);
+        if (in[j] == 0 && objects.labels[j] == label && tgt.heights[j] > level) {
+          in[j] = 1;
+          part.push_back(j);
+        }
+      }
+  }
+  return part;
+}
+
+}  // namespace
+
 InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i>& cells,
-                         const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T) {
+                         const HeightMap& tgt, const ObjectMap& tgt_objects, const Pose& T,
+                         const Config& cfg) {
   InPlaceMatch m;
   if (cells.empty() || tgt.empty() || !tgt_objects.sameGeometry(tgt)) return m;
-  // The blob's footprint in the target grid (distinct cells) and the objects it lands on.
+  // The blob's footprint in the target grid (distinct cells) and the objects it lands on, with
+  // how many of their cells it lands on.
   std::vector<char> mapped(tgt.numCells(), 0);
-  bool any_label = false;
-  std::vector<char> is_label(static_cast<std::size_t>(tgt_objects.numObjects()) + 1, 0);
+  std::map<int, int> landed;
   for (const Eigen::Vector2i& c : cells) {
     const float h = src.at(c.x(), c.y());
     Eigen::Vector2i tc;
     targetHeight(tgt, T, src.cellCenter(c.x(), c.y()), std::max(0.0f, h), &tc);
     if (!tgt.inBounds(tc.x(), tc.y())) continue;
-    mapped[tgt.index(tc.x(), tc.y())] = 1;
-    const int label = tgt_objects.at(tc.x(), tc.y());
-    if (label > 0) {
-      any_label = true;
-      is_label[static_cast<std::size_t>(label)] = 1;
-    }
+    const std::size_t i = tgt.index(tc.x(), tc.y());
+    if (mapped[i] != 0) continue;
+    mapped[i] = 1;
+    const int label = tgt_objects.labels[i];
+    if (label > 0) ++landed[label];
   }
-  if (!any_label) return m;
+  if (landed.empty()) return m;
+  // Whole objects, but of a large one it lands on a sliver of, only the part standing there.
+  std::vector<char> target(tgt.numCells(), 0);
+  std::vector<char> is_label(static_cast<std::size_t>(tgt_objects.numObjects()) + 1, 0);
+  const int large_cells = largeObjectCells(cfg, tgt.cell_size);
+  for (const auto& [label, n] : landed) {
+    if (!sliverOf(n, tgt_objects.object(label).area, cfg.blob_min_overlap, large_cells)) {
+      is_label[static_cast<std::size_t>(label)] = 1;
+      continue;
+    }
+    const std::vector<std::size_t> part =
+        partStandingIn(tgt, tgt_objects, label, mapped, cfg.delta_h);
+    if (part.empty()) is_label[static_cast<std::size_t>(label)] = 1;
+    for (const std::size_t i : part) target[i] = 1;
+  }
   std::vector<Eigen::Vector2i> obj_cells;
   Eigen::Vector2d c_obj = Eigen::Vector2d::Zero(), c_blob = Eigen::Vector2d::Zero();
   Eigen::AlignedBox2d box_obj, box_blob;
@@ -540,7 +598,8 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
     for (int x = 0; x < tgt.width; ++x) {
       const Eigen::Vector2d uv = tgt.cellCenter(x, y);
       const int label = tgt_objects.at(x, y);
-      const bool in_obj = label > 0 && is_label[static_cast<std::size_t>(label)] != 0;
+      const bool in_obj = (label > 0 && is_label[static_cast<std::size_t>(label)] != 0) ||
+                          target[tgt.index(x, y)] != 0;
       const bool in_blob = mapped[tgt.index(x, y)] != 0;
       if (in_obj) {
         obj_cells.emplace_back(x, y);
@@ -636,10 +695,41 @@ double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, c
                              : cfg.fuse_band;
 }
 
+/// True when the cameras saw through vertical plane `q`: part of the extent of another vertical
+/// plane facing within 45 degrees of it lies more than kOtherPlaneBehind behind it, and at least
+/// as far inside q's extent as it is behind (a shelf's front, the coplanar edges of its boards,
+/// with the wall behind the shelf; not a shelf's side, with a wall far behind it seen past its
+/// edge). A wall of the room hides what is behind it (design.md, "Walls are opaque").
+bool seenThrough(const Plane& q, const std::vector<PlaneSdf>& map_planes) {
+  constexpr int kSamples = 9;  // per side of another plane's extent
+  for (const PlaneSdf& ps : map_planes) {
+    const Plane& w = ps.plane;
+    if (w.id == q.id || w.extent.isEmpty() || w.orientation != Plane::Orientation::Vertical ||
+        std::abs(w.normal.dot(q.normal)) < kParallelPlaneCos)
+      continue;
+    for (int i = 0; i < kSamples; ++i)
+      for (int j = 0; j < kSamples; ++j) {
+        const Eigen::Vector2d t(i / (kSamples - 1.0), j / (kSamples - 1.0));
+        const Eigen::Vector2d uv = w.extent.min() + t.cwiseProduct(w.extent.sizes());
+        const Eigen::Vector3d x = w.toWorld(Eigen::Vector3d(uv.x(), uv.y(), 0.0));
+        const double behind = -q.signedDistance(x);
+        if (behind <= kOtherPlaneBehind) continue;
+        // At least `behind` inside q's extent: any ray to it within 45 degrees of q's normal
+        // crosses q's extent.
+        const Eigen::Vector2d local = q.toLocal(x).head<2>();
+        if ((local.array() - q.extent.min().array()).minCoeff() >= behind &&
+            (q.extent.max().array() - local.array()).minCoeff() >= behind)
+          return true;
+      }
+  }
+  return false;
+}
+
 /// What the other planes of the map claim of `plane`'s band (unknown there):
 ///  * the surface of a non-parallel plane (a wall in a table's band, a table in a wall's band) is
 ///    structure, within kOtherPlaneDistance of it; for room structure (a vertical plane at least
-///    kStructureMinExtent long) from kOtherPlaneBehind behind to kStructureFront in front;
+///    kStructureMinExtent long, not seenThrough) from kOtherPlaneBehind behind to kStructureFront
+///    in front;
 ///  * what stands on a horizontal plane is that plane's object (design.md, "Ownership"): its
 ///    whole band, within its extent grown by cfg.support_margin, when `plane` is room structure
 ///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
@@ -652,9 +742,9 @@ double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, c
 ///    of a shelf.
 std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map_planes,
                             const Config& cfg) {
-  const auto isStructure = [](const Plane& q) {
+  const auto isStructure = [&](const Plane& q) {
     return q.orientation == Plane::Orientation::Vertical &&
-           q.extent.sizes().maxCoeff() >= kStructureMinExtent;
+           q.extent.sizes().maxCoeff() >= kStructureMinExtent && !seenThrough(q, map_planes);
   };
   const bool vertical = plane.orientation == Plane::Orientation::Vertical;
   const Eigen::Vector3d origin = plane.toWorld(Eigen::Vector3d::Zero());
@@ -1051,7 +1141,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
       val = validateBlob(sv, tv, T, voxels, cfg, validation);
     }
     r.validations.push_back(val);
-    r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T));
+    r.in_place.push_back(sameInPlace(hs, blob.cells, ht, ot, T, cfg));
     cand.same_in_place = r.in_place.back().same();
     if (val.verdict == BlobValidation::Verdict::Unchanged || voxels.empty()) continue;
     // Structure passing through the band in both maps (design.md, "Structure through the band").

@@ -290,7 +290,7 @@ TEST(SameInPlace, ALegWhoseOutlineDiffersIsTheSameObject) {
   fill(other, 25, 25, 9, 9, kLegTop);  // the other orbit: the leg's outline only
   const HeightMap src = legWithStreak();
   const InPlaceMatch m =
-      sameInPlace(src, objectCells(src), other, computeObjectMap(other, cfg), kId);
+      sameInPlace(src, objectCells(src), other, computeObjectMap(other, cfg), kId, cfg);
   EXPECT_EQ(m.target_cells, 81);
   EXPECT_NEAR(m.overlap, 81.0 / 93.0, 1e-9);  // the 12 streak cells land on the floor
   EXPECT_LT(m.shift, 0.006);                  // < 1 cell: the streak pulls the centroid
@@ -299,7 +299,7 @@ TEST(SameInPlace, ALegWhoseOutlineDiffersIsTheSameObject) {
   EXPECT_TRUE(m.same());
   // And the other way round (the leg without its streak against the streaked one).
   const InPlaceMatch r =
-      sameInPlace(other, objectCells(other), src, computeObjectMap(src, cfg), kId);
+      sameInPlace(other, objectCells(other), src, computeObjectMap(src, cfg), kId, cfg);
   EXPECT_EQ(r.target_cells, 93);
   EXPECT_TRUE(r.same());
 }
@@ -311,31 +311,64 @@ TEST(SameInPlace, AMovedReplacedOrNewObjectIsNot) {
   // Moved 4.2 cm (6 cells) along x: footprints still overlap, the centroid shift gives it away.
   HeightMap moved = floorMap();
   fill(moved, 31, 25, 9, 9, kLegTop);
-  const InPlaceMatch mv = sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), kId);
+  const InPlaceMatch mv = sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), kId, cfg);
   EXPECT_GT(mv.shift, 0.03);
   EXPECT_FALSE(mv.same());
   // The same registration error carried by T instead: in place again.
   Pose T = Pose::Identity();
   T.translation() = Eigen::Vector3d(6 * kCell, 0.0, 0.0);
-  EXPECT_TRUE(sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), T).same());
+  EXPECT_TRUE(sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), T, cfg).same());
   // Replaced in place by a lower object (12 cm) of the same footprint: the shape differs.
   HeightMap lower = floorMap();
   fill(lower, 25, 25, 9, 9, 0.12f);
-  const InPlaceMatch lo = sameInPlace(src, cells, lower, computeObjectMap(lower, cfg), kId);
+  const InPlaceMatch lo = sameInPlace(src, cells, lower, computeObjectMap(lower, cfg), kId, cfg);
   EXPECT_GT(lo.overlap, 0.5);
   EXPECT_GT(lo.shape_distance, kMovedShapeDistance);
   EXPECT_FALSE(lo.same());
   // Replaced by a much larger object (the leg stood on its footprint): overlap and shape differ.
   HeightMap large = floorMap();
   fill(large, 15, 15, 30, 30, kLegTop);
-  const InPlaceMatch lg = sameInPlace(src, cells, large, computeObjectMap(large, cfg), kId);
+  const InPlaceMatch lg = sameInPlace(src, cells, large, computeObjectMap(large, cfg), kId, cfg);
   EXPECT_LT(lg.overlap, 0.5);
   EXPECT_FALSE(lg.same());
   // Free floor in the other map (a new object): no target object at all.
   const HeightMap empty = floorMap();
-  const InPlaceMatch no = sameInPlace(src, cells, empty, computeObjectMap(empty, cfg), kId);
+  const InPlaceMatch no = sameInPlace(src, cells, empty, computeObjectMap(empty, cfg), kId, cfg);
   EXPECT_EQ(no.target_cells, 0);
   EXPECT_FALSE(no.same());
+}
+
+TEST(SameInPlace, AnObjectJoinedToAPanelIsComparedWithItsPartAboveThePanel) {
+  // A wall's band: a back panel 1.5 cm in front of the wall (55 x 50 cells, 0.135 m², larger
+  // than blob_large_area) with a 20 cm object standing in it, one object in the target map; the
+  // source sees the object alone.
+  const Config cfg;
+  constexpr float kPanel = 0.015f;
+  constexpr float kObject = 0.20f;
+  HeightMap src = floorMap();
+  fill(src, 25, 25, 9, 9, kObject);
+  HeightMap panel = floorMap();
+  fill(panel, 2, 5, 55, 50, kPanel);
+  HeightMap joined = panel;
+  fill(joined, 25, 25, 9, 9, kObject);
+  const ObjectMap joined_objects = computeObjectMap(joined, cfg);
+  ASSERT_EQ(joined_objects.numObjects(), 1);
+  ASSERT_GE(joined_objects.object(1).area, largeObjectCells(cfg, kCell));
+  const std::vector<Eigen::Vector2i> cells = objectCells(src);
+  const InPlaceMatch m = sameInPlace(src, cells, joined, joined_objects, kId, cfg);
+  EXPECT_EQ(m.target_cells, 81);  // the object's part above the panel, not the 2,750 cells
+  EXPECT_NEAR(m.overlap, 1.0, 1e-9);
+  EXPECT_TRUE(m.same());
+  // The object gone, the panel left: it lands on structure only, compared with the whole panel.
+  const InPlaceMatch gone = sameInPlace(src, cells, panel, computeObjectMap(panel, cfg), kId, cfg);
+  EXPECT_EQ(gone.target_cells, 55 * 50);
+  EXPECT_FALSE(gone.same());
+  // A lower object (12 cm) in its place on the panel: its part differs in shape.
+  HeightMap lower = panel;
+  fill(lower, 25, 25, 9, 9, 0.12f);
+  const InPlaceMatch lo = sameInPlace(src, cells, lower, computeObjectMap(lower, cfg), kId, cfg);
+  EXPECT_EQ(lo.target_cells, 81);
+  EXPECT_FALSE(lo.same());
 }
 
 /// A table on four 5 x 5 cm legs, seen by the views of a 16-view ring around it on the +x side
@@ -763,6 +796,30 @@ TEST(PlaneMaps, AWallsNoisySurfaceAndTheBandBehindItAreStructureNotObjects) {
   EXPECT_GT(near_face, 0);
   EXPECT_EQ(objectCellsBetween(with_face, 0.34, 0.38), objectCellsBetween(alone, 0.34, 0.38));
   EXPECT_EQ(objectCellsBetween(with_face, 0.26, 0.28), objectCellsBetween(alone, 0.26, 0.28));
+}
+
+TEST(PlaneMaps, AShelfFrontSeenThroughToTheWallIsNotStructure) {
+  // A board's band: a 6 cm box stands 2-8 cm behind a vertical plane at y = 0.2 (1.2 x 2 m, long
+  // enough for room structure), the coplanar front edges of the shelf's boards.
+  const auto field = [](double, double y) { return y >= 0.22 && y < 0.28 ? 0.06 : 0.0; };
+  const PlaneSdf board = floorWith(field);
+  const Config cfg;
+  PlaneSdf front = wallAt(0.2, 1.2, 2.0);
+  front.plane.id = 1;
+  const PlaneMaps alone = computePlaneMaps(board, {board}, cfg);
+  EXPECT_GT(objectCellsBetween(alone, 0.225, 0.28), 500);
+  // As a wall it claims 10 cm behind itself: the box is unknown.
+  EXPECT_EQ(objectCellsBetween(computePlaneMaps(board, {board, front}, cfg), 0.225, 0.28), 0);
+  // With the room's wall 35 cm behind it, inside its extent, the cameras saw through it: it
+  // claims only its own 2 cm, and the box behind that is the board's again.
+  PlaneSdf wall = wallAt(0.55, 1.2, 2.0);
+  wall.plane.id = 2;
+  const PlaneMaps seen = computePlaneMaps(board, {board, front, wall}, cfg);
+  EXPECT_EQ(objectCellsBetween(seen, 0.225, 0.28), objectCellsBetween(alone, 0.225, 0.28));
+  // A wall 1.4 m behind a plane 1.2 m wide is seen past its edges, not through it.
+  PlaneSdf far = wallAt(1.6, 1.2, 2.0);
+  far.plane.id = 2;
+  EXPECT_EQ(objectCellsBetween(computePlaneMaps(board, {board, front, far}, cfg), 0.225, 0.28), 0);
 }
 
 /// A shelf board in the x-y plane (normal +y) whose top is at v = `top`, 0.8 x 0.3 m.
