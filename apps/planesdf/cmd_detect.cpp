@@ -61,8 +61,6 @@ int runDetect(const DetectArgs& args) {
   if (args.verbose) {
     printPlanes("reference", reference);
     printPlanes("current", current);
-  }
-  if (args.verbose)
     for (const PlanePairResult& r : set.pairs) {
       std::fprintf(stderr,
                    "%s plane %d -> %s plane %d: gap %+.3f m, in-plane %s (%.1f, %.1f cm, %.2f deg; "
@@ -91,6 +89,7 @@ int runDetect(const DetectArgs& args) {
         std::fprintf(stderr, "\n");
       }
     }
+  }
   std::printf("%zu changes (maps: %.0f ms, detect: %.0f ms, outputs: %.0f ms) -> %s\n",
               set.events.size(), load_ms, set.milliseconds, write_ms, args.out.c_str());
   for (const ChangeEvent& e : set.events) {

@@ -530,26 +530,16 @@ std::vector<std::size_t> partStandingIn(const HeightMap& tgt, const ObjectMap& o
   const auto mid = heights.begin() + static_cast<std::ptrdiff_t>(heights.size() / 2);
   std::nth_element(heights.begin(), mid, heights.end());
   const float level = *mid + static_cast<float>(delta_h);
-  std::vector<char> in(tgt.numCells(), 0);
+  Mask2D above = Mask2D::zeros(tgt);
+  for (std::size_t i = 0; i < objects.labels.size(); ++i)
+    above.cells[i] = objects.labels[i] == label && tgt.heights[i] > level ? 1 : 0;
+  const Components cc = connectedComponents(above, 1, 8);
+  std::vector<char> keep(cc.areas.size() + 1, 0);
+  for (const std::size_t i : seeds) keep[static_cast<std::size_t>(cc.labels[i])] = 1;
+  keep[0] = 0;  // seeds at or below the level
   std::vector<std::size_t> part;
-  for (const std::size_t i : seeds)
-    if (tgt.heights[i] > level) {
-      in[i] = 1;
-      part.push_back(i);
-    }
-  for (std::size_t k = 0; k < part.size(); ++k) {  // grows while it is walked
-    const int x = static_cast<int>(part[k] % static_cast<std::size_t>(tgt.width));
-    const int y = static_cast<int>(part[k] / static_cast<std::size_t>(tgt.width));
-    for (int dy = -1; dy <= 1; ++dy)
-      for (int dx = -1; dx <= 1; ++dx) {
-        if (!tgt.inBounds(x + dx, y + dy)) continue;
-        const std::size_t j = tgt.index(x + dx, y + dy);
-        if (in[j] == 0 && objects.labels[j] == label && tgt.heights[j] > level) {
-          in[j] = 1;
-          part.push_back(j);
-        }
-      }
-  }
+  for (std::size_t i = 0; i < cc.labels.size(); ++i)
+    if (keep[static_cast<std::size_t>(cc.labels[i])] != 0) part.push_back(i);
   return part;
 }
 
@@ -747,6 +737,7 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
            q.extent.sizes().maxCoeff() >= kStructureMinExtent && !seenThrough(q, map_planes);
   };
   const bool vertical = plane.orientation == Plane::Orientation::Vertical;
+  const bool plane_is_structure = isStructure(plane);
   const Eigen::Vector3d origin = plane.toWorld(Eigen::Vector3d::Zero());
   std::vector<Claim> claims;
   for (const PlaneSdf& ps : map_planes) {
@@ -771,7 +762,7 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
         extentsOverlap(plane, q))
       claims.push_back({&q, -detail::kMaxSlabThickness, kOtherPlaneDistance,
                         grown(q.extent, kOtherPlaneMargin)});
-    const bool owns = vertical ? isStructure(plane) : above > 0.0 && !extentsOverlap(plane, q);
+    const bool owns = vertical ? plane_is_structure : above > 0.0 && !extentsOverlap(plane, q);
     if (owns)  // with its slab: a board's underside, up to kMaxSlabThickness below its top
       claims.push_back({&q, -detail::kMaxSlabThickness,
                         vertical ? compartmentTop(q, map_planes, cfg) : cfg.fuse_band,
