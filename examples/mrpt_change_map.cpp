@@ -77,7 +77,7 @@ int main() {
   ChangePrinter printer;
   printer.observeBegin(*changes);
   for (const auto& scan : toScans(data.current)) maps.insertObservation(*scan);
-  changes->detectChanges();  // the last scans since the previous detection
+  changes->finishChanges();  // the session ended: the last scans, and every result settles
 
   mrpt::maps::CColouredPointsMap points;
   changes->getChangedPoints(points);

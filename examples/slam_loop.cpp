@@ -1,6 +1,7 @@
 // slam_loop: planesdf inside a host SLAM loop. The reference session is mapped first; then, frame
 // by frame, the current session is integrated into its own planesdf::Map and the ChangeDetector
-// re-checks only the planes that changed, calling back with each alert as it arrives.
+// re-checks only the planes that changed, calling back with each alert once its evidence has
+// held over Config::event_settle_frames frames; finish() settles the rest when the session ends.
 //
 // Runs with no arguments on the simulator's tabletop scene (fixed seed): a table with objects,
 // some added, removed or moved between the two sessions.
@@ -42,7 +43,9 @@ int main() {
   for (frame_index = 0; frame_index < data.current.frames.size(); ++frame_index) {
     const auto t0 = std::chrono::steady_clock::now();
     current.integrate(data.current.frames[frame_index], data.current.reported_poses[frame_index]);
-    const UpdateStats stats = detector.update(current);  // callbacks run inside update()
+    const bool last = frame_index + 1 == data.current.frames.size();
+    // Callbacks run inside update() and finish().
+    const UpdateStats stats = last ? detector.finish(current) : detector.update(current);
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     std::printf("frame %3zu: %6.1f ms (fusion + detection), %d plane pairs re-checked\n",

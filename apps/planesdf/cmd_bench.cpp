@@ -14,6 +14,7 @@
 #include <iostream>
 #include <sstream>
 
+#include "bench_render.hpp"
 #include "commands.hpp"
 #include "planesdf/baseline.hpp"
 #include "planesdf/change.hpp"
@@ -31,6 +32,27 @@
 #endif
 
 namespace planesdf::cli {
+
+Sequence renderSession(const sim::Scene& scene, const sim::Session& session, int session_index,
+                       int max_frames, const std::string& label) {
+  const std::vector<Pose> truth = sim::trajectoryPoses(session.trajectory);
+  const Pose E = sim::localisationErrorPose(session.localisation_error);
+  const std::size_t n =
+      max_frames > 0 ? std::min<std::size_t>(truth.size(), max_frames) : truth.size();
+  Sequence s;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint64_t seed =
+        (static_cast<std::uint64_t>(scene.seed) << 32) ^ (std::uint64_t(session_index) << 24) ^ i;
+    s.frames.push_back(sim::renderDepth(scene, session, truth[i], seed));
+    if ((i + 1) % 10 == 0)
+      std::cerr << "bench: " << label << " frame " << (i + 1) << "/" << n << "\n";
+    s.true_poses.push_back(truth[i]);
+    s.poses.push_back(E * truth[i]);
+  }
+  std::cerr << "bench: rendered " << n << " " << label << " frames\n";
+  return s;
+}
+
 namespace {
 
 using nlohmann::json;
@@ -47,31 +69,6 @@ json numberOrNull(double v) {
 
 void writeText(const std::string& path, const std::string& text) {
   io::writeFileAtomic(path, [&](std::ostream& out) { out << text; });
-}
-
-/// The rendered frames and reported poses of one simulated session.
-struct Sequence {
-  std::vector<DepthFrame> frames;
-  std::vector<Pose> poses;
-};
-
-Sequence renderSession(const sim::Scene& scene, const sim::Session& session, int session_index,
-                       int max_frames, const std::string& label) {
-  const std::vector<Pose> truth = sim::trajectoryPoses(session.trajectory);
-  const Pose E = sim::localisationErrorPose(session.localisation_error);
-  const std::size_t n =
-      max_frames > 0 ? std::min<std::size_t>(truth.size(), max_frames) : truth.size();
-  Sequence s;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint64_t seed =
-        (static_cast<std::uint64_t>(scene.seed) << 32) ^ (std::uint64_t(session_index) << 24) ^ i;
-    s.frames.push_back(sim::renderDepth(scene, session, truth[i], seed));
-    if ((i + 1) % 10 == 0)
-      std::cerr << "bench: " << label << " frame " << (i + 1) << "/" << n << "\n";
-    s.poses.push_back(E * truth[i]);
-  }
-  std::cerr << "bench: rendered " << n << " " << label << " frames\n";
-  return s;
 }
 
 std::size_t mapVoxels(const Map& map) {
@@ -298,6 +295,7 @@ int runSingleBench(const BenchArgs& args) {
 int runBench(const BenchArgs& args) {
   if (args.frames < 0) throw Error("--frames", "must be at least 1 (or 0 for all)");
   if (!args.suite.empty()) return runSuite(args);
+  if (args.stream) return runStreamBench(args);
   return runSingleBench(args);
 }
 

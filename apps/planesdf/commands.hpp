@@ -93,9 +93,16 @@ struct BenchArgs {
   std::string mosd_dir;    ///< suite: folder with pairs.tsv
   int octomap_stride = 8;  ///< suite: pixel stride of simulated frames into OctoMap
   int reserve_mb = 128;    ///< block memory each tabletop map reserves before fusing (MiB)
+  bool stream = false;     ///< --stream: the incremental detector on simulated streams
+  /// stream: the presets and seeds to run, "PRESET:SEED"
+  std::vector<std::string> stream_runs = {"tabletop:7", "room:11"};
+  int update_every = 1;    ///< stream: frames between ChangeDetector::update() calls
+  int settle_frames = -1;  ///< stream: Config::event_settle_frames (-1: the default)
 };
 int runBench(const BenchArgs& args);
 /// `bench --suite DIR` (cmd_bench_suite.cpp).
 int runSuite(const BenchArgs& args);
+/// `bench --stream` (cmd_bench_stream.cpp).
+int runStreamBench(const BenchArgs& args);
 
 }  // namespace planesdf::cli

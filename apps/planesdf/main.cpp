@@ -159,6 +159,21 @@ int main(int argc, char** argv) {
                    "Suite: pixel stride of simulated frames inserted into OctoMap")
       ->capture_default_str();
 
+  bench->add_flag("--stream", bench_args.stream,
+                  "The incremental ChangeDetector on simulated streams: notifications, latency, "
+                  "update cost, final events against detect");
+  bench
+      ->add_option("--stream-runs", bench_args.stream_runs,
+                   "Stream: PRESET:SEED runs (tabletop:7,room:11)")
+      ->delimiter(',');
+  bench->add_option("--update-every", bench_args.update_every, "Stream: frames between updates")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100000));
+  bench
+      ->add_option("--settle-frames", bench_args.settle_frames,
+                   "Stream: Config::event_settle_frames (default: the Config's)")
+      ->check(CLI::Range(0, 100000));
+
   // info (ours, beyond DESIGN §3): check that an input loads and show what it holds
   std::string info_input;
   auto* info = app.add_subcommand("info", "Show what a session input or map holds");

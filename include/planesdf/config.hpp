@@ -224,6 +224,13 @@ struct Config {
   double alpha = 2.0;
   double delta_blob = 0.9;
 
+  // --- incremental detection (ChangeDetector) ----------------------------------------------------
+  /// A change is announced once the updates over at least this many frames of the current
+  /// session found it with the same type; an announced change is updated (new type, extent or
+  /// confidence) or retracted only once the updates over as many frames agree (design.md,
+  /// "Stable events"). 0 announces every result at once. ChangeDetector::finish settles all.
+  int event_settle_frames = 10;
+
   /// Truncation distance in metres.
   double truncation() const { return truncation_voxels * voxel_size; }
 };

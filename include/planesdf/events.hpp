@@ -1,18 +1,27 @@
 #pragma once
 /// \file events.hpp
-/// Incremental change detection (DESIGN §3): a ChangeDetector holds the reference map and, each
+/// Incremental change detection (DESIGN §3): a ChangeDetector shares the reference map and, each
 /// time update(current) is called while the current session is being mapped, re-checks only the
 /// plane pairs whose current volume changed since the last call, and tells user callbacks about
 /// each change once (status New), again when a later frame changes its type, extent or
 /// confidence (Updated), and when later frames show there is no change after all (Retracted).
 ///
+/// Stable events (design.md, "Stable events"): a result is announced only once the updates over
+/// Config::event_settle_frames frames of the current session found it with the same type, and an
+/// announced change is updated or retracted only once as many frames agree. finish() settles
+/// everything at the end of a session: the events are then detectChanges' on the same maps.
+///
 /// Identity of a change across updates: a new result is the same change as an active one when
 /// one of their sides covers a common voxel column of the same plane (reference side with
 /// reference side, current with current). Its id stays; ids are never reused.
+///
+/// Threads: a ChangeDetector is used by one thread at a time; update() only reads `current`
+/// and the reference, so other detectors may read the same maps meanwhile.
 
 #include <cstdint>
 #include <functional>
 #include <map>
+#include <memory>
 #include <tuple>
 #include <vector>
 
@@ -34,9 +43,12 @@ class ChangeDetector {
  public:
   using Callback = std::function<void(const ChangeEvent&)>;
 
-  /// Keeps a copy of `reference` (or takes it). Throws planesdf::Error("config", ...) on
-  /// invalid parameters and when `cfg` gives the maps another geometry than the reference was
-  /// built with (voxel size, truncation, band): detection reads the maps at the Config's.
+  /// Shares `reference` (not null; it must not change while the detector lives). Throws
+  /// planesdf::Error("config", ...) on invalid parameters and when `cfg` gives the maps another
+  /// geometry than the reference was built with (voxel size, truncation, band): detection reads
+  /// the maps at the Config's.
+  ChangeDetector(std::shared_ptr<const Map> reference, const Config& cfg);
+  /// Keeps a copy of `reference` (or takes it), as above.
   ChangeDetector(const Map& reference, const Config& cfg);
   ChangeDetector(Map&& reference, const Config& cfg);
 
@@ -49,9 +61,14 @@ class ChangeDetector {
   /// reference's geometry (else planesdf::Error("current map", ...)).
   UpdateStats update(const Map& current);
 
-  /// The active changes (latest state, status of their last notification), ordered by id.
+  /// As update(), at the end of the session: every result settles now (announced, updated or
+  /// retracted without waiting for Config::event_settle_frames), so events() are then
+  /// detectChanges(reference(), current, config()).events up to their ids and statuses.
+  UpdateStats finish(const Map& current);
+
+  /// The announced changes (their state as last notified), ordered by id.
   std::vector<ChangeEvent> events() const;
-  const Map& reference() const { return reference_; }
+  const Map& reference() const { return *reference_; }
   const Config& config() const { return cfg_; }
 
  private:
@@ -66,7 +83,23 @@ class ChangeDetector {
     std::size_t num_planes = 0;  ///< planes of the map when computed (exclusion uses them)
   };
 
-  Map reference_;
+  /// A change found by recent updates: announced (in active_) or pending.
+  struct Track {
+    ChangeEvent shown;   ///< announced: as last notified
+    ChangeEvent latest;  ///< the latest result found for it
+    /// frames() from which the current disagreement has held: announced, `latest` materially
+    /// different from `shown` or not found (`absent`); pending, `latest`'s type.
+    std::uint64_t since = 0;
+    bool differs = false;
+    bool absent = false;
+  };
+
+  UpdateStats run(const Map& current, int settle_frames);
+  std::vector<ChangeEvent> compare(const Map& current, UpdateStats& stats);
+  void settle(std::vector<ChangeEvent> fresh, std::uint64_t now, int settle_frames,
+              UpdateStats& stats);
+
+  std::shared_ptr<const Map> reference_;
   Config cfg_;
   DetectOptions options_;
   std::vector<Callback> callbacks_;
@@ -74,7 +107,8 @@ class ChangeDetector {
   std::map<int, CurrentMaps> current_maps_;
   /// (reference→current?, source id, target id) -> candidates
   std::map<std::tuple<bool, int, int>, PairCache> pairs_;
-  std::map<int, ChangeEvent> active_;  ///< by id
+  std::map<int, Track> active_;  ///< announced, by id
+  std::vector<Track> pending_;   ///< found, not announced yet
   /// sessionCorrection, and the (current plane id, revision) of the forward pairs it was
   /// estimated from (recomputed when they change).
   SessionCorrection correction_;

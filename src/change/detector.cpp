@@ -37,7 +37,10 @@ bool materiallyDifferent(const ChangeEvent& before, const ChangeEvent& after) {
 }  // namespace
 
 ChangeDetector::ChangeDetector(const Map& reference, const Config& cfg)
-    : ChangeDetector(Map(reference), cfg) {}
+    : ChangeDetector(std::make_shared<const Map>(reference), cfg) {}
+
+ChangeDetector::ChangeDetector(Map&& reference, const Config& cfg)
+    : ChangeDetector(std::make_shared<const Map>(std::move(reference)), cfg) {}
 
 namespace {
 
@@ -61,13 +64,15 @@ void requireGeometry(const Config& cfg, const Map& map, const std::string& what,
 
 }  // namespace
 
-ChangeDetector::ChangeDetector(Map&& reference, const Config& cfg)
+ChangeDetector::ChangeDetector(std::shared_ptr<const Map> reference, const Config& cfg)
     : reference_(std::move(reference)), cfg_(cfg) {
+  if (!reference_) throw Error("reference map", "null");
   validateConfig(cfg_, "config");
-  requireGeometry(cfg_, reference_, "config", "the reference map");
-  for (const PlaneSdf& p : reference_.planes())
-    reference_maps_.push_back(computePlaneMaps(p, reference_.planes(), cfg_, &reference_.points(),
-                                               surfaceRimCells(reference_)));
+  const Map& ref = *reference_;
+  requireGeometry(cfg_, ref, "config", "the reference map");
+  for (const PlaneSdf& p : ref.planes())
+    reference_maps_.push_back(
+        computePlaneMaps(p, ref.planes(), cfg_, &ref.points(), surfaceRimCells(ref)));
 }
 
 void ChangeDetector::onEvent(Callback callback) {
@@ -76,14 +81,34 @@ void ChangeDetector::onEvent(Callback callback) {
 
 std::vector<ChangeEvent> ChangeDetector::events() const {
   std::vector<ChangeEvent> out;
-  for (const auto& [id, e] : active_) out.push_back(e);
+  for (const auto& [id, t] : active_) out.push_back(t.shown);
   return out;
 }
 
 UpdateStats ChangeDetector::update(const Map& current) {
+  return run(current, cfg_.event_settle_frames);
+}
+
+UpdateStats ChangeDetector::finish(const Map& current) {
+  return run(current, 0);
+}
+
+UpdateStats ChangeDetector::run(const Map& current, int settle_frames) {
   const auto t0 = std::chrono::steady_clock::now();
   UpdateStats stats;
   requireGeometry(cfg_, current, "current map", "the current map");
+  settle(compare(current, stats), current.frames(), settle_frames, stats);
+  std::stable_sort(stats.notifications.begin(), stats.notifications.end(),
+                   [](const ChangeEvent& a, const ChangeEvent& b) { return a.id < b.id; });
+  for (const ChangeEvent& e : stats.notifications)
+    for (const Callback& cb : callbacks_) cb(e);
+  stats.milliseconds =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  return stats;
+}
+
+std::vector<ChangeEvent> ChangeDetector::compare(const Map& current, UpdateStats& stats) {
+  const Map& reference = *reference_;
   const auto& cp = current.planes();
 
   // Current plane maps, recomputed when the plane's volume (or the plane set) changed.
@@ -102,7 +127,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
   // The session-wide localisation correction (see sessionCorrection), re-estimated only when a
   // current plane it depends on changed.
   const std::vector<PlaneMatch> forward_matches =
-      uniqueMatches(registerPlanes(reference_, current, cfg_));
+      uniqueMatches(registerPlanes(reference, current, cfg_));
   if (cfg_.refine_inplane) {
     std::vector<std::pair<int, std::uint64_t>> key;
     for (const PlaneMatch& m : forward_matches) {
@@ -112,7 +137,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
     key.emplace_back(-1, cp.size());
     if (key != correction_key_) {
       correction_ = sessionCorrection(
-          reference_, current, forward_matches,
+          reference, current, forward_matches,
           [&](bool ref, int id) -> const PlaneMaps& {
             return ref ? reference_maps_[static_cast<std::size_t>(id)] : currentMaps(id);
           },
@@ -124,10 +149,10 @@ UpdateStats ChangeDetector::update(const Map& current) {
   std::map<std::tuple<bool, int, int>, PairCache> next;
   RefinedTransforms refined;
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
-    const Map& src = forward ? static_cast<const Map&>(reference_) : current;
-    const Map& tgt = forward ? current : static_cast<const Map&>(reference_);
+    const Map& src = forward ? reference : current;
+    const Map& tgt = forward ? current : reference;
     for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg_))) {
-      if (forward) m = corrected(m, reference_, current, correction_);
+      if (forward) m = corrected(m, reference, current, correction_);
       const int ref_id = forward ? m.source_id : m.target_id;
       const int cur_id = forward ? m.target_id : m.source_id;
       const std::uint64_t rev = cp[static_cast<std::size_t>(cur_id)].volume.revision();
@@ -150,7 +175,7 @@ UpdateStats ChangeDetector::update(const Map& current) {
       pc.current_revision = rev;
       pc.correction = correction_;
       pc.candidates =
-          compareMatchedPair(reference_, current, forward, m, forward ? ref_maps : cur_maps,
+          compareMatchedPair(reference, current, forward, m, forward ? ref_maps : cur_maps,
                              forward ? cur_maps : ref_maps, refined, cfg_, options_, &res);
       pc.T_target_source = res.match.T_target_source_local;
       next[key] = std::move(pc);
@@ -162,54 +187,80 @@ UpdateStats ChangeDetector::update(const Map& current) {
   for (const auto& [key, pc] : pairs_)
     for (const CandidateChange& c : pc.candidates)
       (std::get<0>(key) ? removed : added).push_back(c);
-  std::vector<ChangeEvent> fresh = assembleEvents(std::move(removed), std::move(added), cfg_);
+  return assembleEvents(std::move(removed), std::move(added), cfg_);
+}
 
-  // Match the fresh results with the active changes.
+void ChangeDetector::settle(std::vector<ChangeEvent> fresh, std::uint64_t now, int settle_frames,
+                            UpdateStats& stats) {
+  const auto held = [&](const Track& t) { return now - t.since >= std::uint64_t(settle_frames); };
+  const auto notify = [&](ChangeEvent e, ChangeStatus status) {
+    e.status = status;
+    e.frame = now;
+    stats.notifications.push_back(e);
+    return e;
+  };
   std::vector<bool> kept(fresh.size(), false);
-  std::map<int, ChangeEvent> still;
-  for (auto& [id, old] : active_) {
-    std::size_t best = fresh.size();
+  const auto take = [&](const Track& t) {
     for (std::size_t i = 0; i < fresh.size(); ++i)
-      if (!kept[i] && sameChange(old, fresh[i])) {
-        best = i;
-        break;
+      if (!kept[i] && (sameChange(t.latest, fresh[i]) || sameChange(t.shown, fresh[i]))) {
+        kept[i] = true;
+        return i;
       }
-    if (best == fresh.size()) {
-      ChangeEvent gone = old;
-      gone.status = ChangeStatus::Retracted;
-      gone.frame = current.frames();
-      stats.notifications.push_back(std::move(gone));
+    return fresh.size();
+  };
+  // Announced changes: a difference from what was announced, or their absence, must hold.
+  for (auto it = active_.begin(); it != active_.end();) {
+    Track& t = it->second;
+    const std::size_t i = take(t);
+    if (i == fresh.size()) {
+      if (!t.absent) t.since = now;
+      t.absent = true;
+      t.differs = false;
+      if (held(t)) {
+        notify(t.shown, ChangeStatus::Retracted);
+        it = active_.erase(it);
+      } else {
+        ++it;
+      }
       continue;
     }
-    kept[best] = true;
-    ChangeEvent now = std::move(fresh[best]);
-    now.id = id;
-    now.frame = old.frame;
-    now.status = old.status;
-    if (materiallyDifferent(old, now)) {
-      now.status = ChangeStatus::Updated;
-      now.frame = current.frames();
-      stats.notifications.push_back(now);
-    }
-    still.emplace(id, std::move(now));
-  }
-  for (std::size_t i = 0; i < fresh.size(); ++i) {
-    if (kept[i]) continue;
     ChangeEvent e = std::move(fresh[i]);
-    e.id = next_id_++;
-    e.status = ChangeStatus::New;
-    e.frame = current.frames();
-    stats.notifications.push_back(e);
-    still.emplace(e.id, std::move(e));
+    e.id = it->first;
+    if (!materiallyDifferent(t.shown, e)) {  // kept silently, as announced
+      e.status = t.shown.status;
+      e.frame = t.shown.frame;
+      t = Track{e, e};
+    } else {
+      if (t.absent || !t.differs || t.latest.type != e.type) t.since = now;
+      t.absent = false;
+      t.differs = true;
+      t.latest = e;
+      if (held(t)) t = Track{notify(std::move(e), ChangeStatus::Updated), t.latest};
+    }
+    ++it;
   }
-  active_ = std::move(still);
-  std::stable_sort(stats.notifications.begin(), stats.notifications.end(),
-                   [](const ChangeEvent& a, const ChangeEvent& b) { return a.id < b.id; });
-  for (const ChangeEvent& e : stats.notifications)
-    for (const Callback& cb : callbacks_) cb(e);
-  stats.milliseconds =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  return stats;
+  // Pending results: announced once their type has held; dropped when not found again.
+  std::vector<Track> pending;
+  for (Track& t : pending_) {
+    const std::size_t i = take(t);
+    if (i == fresh.size()) continue;
+    if (t.latest.type != fresh[i].type) t.since = now;
+    t.latest = std::move(fresh[i]);
+    pending.push_back(std::move(t));
+  }
+  for (std::size_t i = 0; i < fresh.size(); ++i)
+    if (!kept[i]) pending.push_back(Track{ChangeEvent{}, std::move(fresh[i]), now});
+  pending_.clear();
+  for (Track& t : pending) {
+    if (!held(t)) {
+      pending_.push_back(std::move(t));
+      continue;
+    }
+    ChangeEvent e = std::move(t.latest);
+    e.id = next_id_++;
+    e = notify(std::move(e), ChangeStatus::New);
+    active_.emplace(e.id, Track{e, e});
+  }
 }
 
 }  // namespace planesdf

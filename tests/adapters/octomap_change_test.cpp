@@ -116,6 +116,88 @@ TEST(OctomapChanges, RemovedObjectBecomesFreeAndAddedOccupied) {
   EXPECT_TRUE(occupied(tree, Eigen::Vector3d(0.05, -0.10, kTable + 0.06)));
 }
 
+/// A region of points filling a 6 x 6 x 6 cm box on the table around (x, y).
+ChangeRegion blockAt(double x, double y) {
+  ChangeRegion r;
+  for (double dx = -0.03; dx <= 0.03; dx += 0.01)
+    for (double dy = -0.03; dy <= 0.03; dy += 0.01)
+      for (double z = kTable + 0.005; z <= kTable + 0.06; z += 0.01)
+        r.points.emplace_back(static_cast<float>(x + dx), static_cast<float>(y + dy),
+                              static_cast<float>(z));
+  r.centroid = Eigen::Vector3d(x, y, kTable + 0.03);
+  return r;
+}
+
+ChangeEvent event(int id, ChangeType type, ChangeStatus status, const ChangeRegion& ref,
+                  const ChangeRegion& cur) {
+  ChangeEvent e;
+  e.id = id;
+  e.type = type;
+  e.status = status;
+  e.reference = ref;
+  e.current = cur;
+  return e;
+}
+
+/// Every voxel `events` cover (either side, either way) has the same value in both trees, and
+/// so has every leaf of `original`.
+void expectSameTrees(const octomap::OcTree& got, const octomap::OcTree& want,
+                     const octomap::OcTree& original, const std::vector<ChangeEvent>& events) {
+  octomap::KeySet keys;
+  for (const ChangeEvent& e : events)
+    for (const ChangeRegion* r : {&e.reference, &e.current})
+      for (const bool removed : {true, false}) {
+        const octomap::KeySet k = oa::changeKeys(*r, original, removed);
+        keys.insert(k.begin(), k.end());
+      }
+  for (auto it = original.begin_leafs(); it != original.end_leafs(); ++it)
+    if (it.getDepth() == original.getTreeDepth()) keys.insert(it.getKey());
+  ASSERT_GT(keys.size(), 1000u);
+  std::size_t differ = 0;
+  for (const auto& key : keys) {
+    const octomap::OcTreeNode* a = got.search(key);
+    const octomap::OcTreeNode* b = want.search(key);
+    if ((a == nullptr) != (b == nullptr) ||
+        (a != nullptr && std::abs(a->getLogOdds() - b->getLogOdds()) > 1e-5f))
+      ++differ;
+  }
+  EXPECT_EQ(differ, 0u) << "of " << keys.size() << " voxels";
+}
+
+TEST(OctomapChanges, ALayerFollowsNotificationsToTheFinalSet) {
+  // New, Updated and Retracted in turn, with overlapping changes: the tree ends as the final
+  // set applied to the original.
+  const octomap::OcTree& original = *fixture().tree;
+  const ChangeRegion none;
+  const ChangeRegion box = blockAt(kBoxCentre.x(), kBoxCentre.y());
+  const std::vector<ChangeEvent> notes = {
+      event(1, ChangeType::Added, ChangeStatus::New, none, blockAt(-0.12, 0.15)),
+      event(2, ChangeType::Removed, ChangeStatus::New, box, none),
+      event(3, ChangeType::Added, ChangeStatus::New, none, blockAt(-0.09, 0.15)),
+      event(1, ChangeType::Moved, ChangeStatus::Updated, blockAt(-0.15, -0.10),
+            blockAt(-0.13, 0.15)),
+      event(2, ChangeType::Removed, ChangeStatus::Retracted, box, none),
+      event(3, ChangeType::Replaced, ChangeStatus::Updated, blockAt(0.12, 0.05),
+            blockAt(-0.09, 0.15)),
+  };
+  octomap::OcTree tree(original);
+  oa::OctreeChangeLayer layer(tree);
+  for (const ChangeEvent& e : notes) layer.apply(e);
+  ASSERT_EQ(layer.active().size(), 2u);
+  octomap::OcTree want(original);
+  oa::applyChanges(std::vector<ChangeEvent>{notes[3], notes[5]}, want);
+  expectSameTrees(tree, want, original, notes);
+  // The retracted removal left the box occupied; the replaced place overlapping it is free.
+  EXPECT_TRUE(occupied(tree, Eigen::Vector3d(0.07, 0.05, kTable + 0.075)));
+  EXPECT_TRUE(knownFree(tree, Eigen::Vector3d(0.13, 0.05, kTable + 0.05)));
+
+  // Retracting everything gives the original back.
+  layer.apply(event(1, ChangeType::Moved, ChangeStatus::Retracted, none, none));
+  layer.apply(event(3, ChangeType::Replaced, ChangeStatus::Retracted, none, none));
+  EXPECT_TRUE(layer.active().empty());
+  expectSameTrees(tree, original, original, notes);
+}
+
 TEST(OctomapChanges, ColorTreeIsPaintedByTypeAndWritten) {
   const Fixture& f = fixture();
   octomap::ColorOcTree tree(kRes);

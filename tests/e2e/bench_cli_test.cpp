@@ -99,6 +99,29 @@ void expectRates(const json& m, const std::string& what) {
   EXPECT_GE(m.at("wrong").get<int>(), 0) << what;
 }
 
+TEST(BenchCli, StreamRunAnnouncesEachChangeOnceAndEndsAsDetect) {
+  // The tabletop stream of `planesdf bench` (3 changes), the detector updated after every frame
+  // with the default settling: each change announced once, within 15 frames of the first frame
+  // that sees its place, nothing retracted, and the final events are the offline detect's.
+  TempDir tmp;
+  const std::string out = tmp.file("stream.json");
+  const auto r = runCli("bench --stream --stream-runs tabletop:7 --json '" + out + "'");
+  ASSERT_EQ(r.exit_code, 0) << r.out;
+  const json runs = json::parse(planesdf::io::readFile(out));
+  ASSERT_EQ(runs.size(), 1u);
+  const json& j = runs[0];
+  EXPECT_EQ(j.at("event_settle_frames").get<int>(), 10);
+  EXPECT_EQ(j.at("gt_changes").get<int>(), 3);
+  EXPECT_EQ(j.at("gt_changes_alerted").get<int>(), 3) << j.dump();
+  EXPECT_TRUE(j.at("final_events_match_offline").get<bool>()) << j.dump();
+  EXPECT_EQ(j.at("retracted").get<int>(), 0) << j.dump();
+  EXPECT_LE(j.at("notifications_per_final_event").get<double>(), 4.0 / 3.0) << j.dump();
+  EXPECT_LE(j.at("alert_latency_frames_median").get<double>(), 15.0) << j.dump();
+  const auto bad = runCli("bench --stream --stream-runs tabletop");
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(bad.out.find("--stream-runs"), std::string::npos) << bad.out;
+}
+
 TEST(BenchCli, ReducedSuiteScoresEveryMethod) {
   PLANESDF_SKIP_WITHOUT_MOSD();
   TempDir tmp;

@@ -1201,8 +1201,15 @@ TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
   EXPECT_EQ(bandPoints(computePlaneMaps(floor, {floor}, cfg), floor.plane, points, cfg), nullptr);
 }
 
+/// A detector that announces every result at once (Config::event_settle_frames = 0).
+Config immediate() {
+  Config cfg;
+  cfg.event_settle_frames = 0;
+  return cfg;
+}
+
 TEST(ChangeDetector, EmitsOnceThenOnlyRechecksChangedPlanes) {
-  ChangeDetector det(beforeMap(), Config{});
+  ChangeDetector det(beforeMap(), immediate());
   std::vector<ChangeEvent> heard;
   det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
   Map cur{Config{}};
@@ -1248,7 +1255,7 @@ TEST(ChangeDetector, AConfigOrCurrentMapOfAnotherGeometryIsAnError) {
 TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
   // The current session first sees the table without the box (removed), then the box is back
   // and seen from many more views: the removal is retracted.
-  ChangeDetector det(beforeMap(), Config{});
+  ChangeDetector det(beforeMap(), immediate());
   std::vector<ChangeEvent> heard;
   det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
   Map cur{Config{}};
@@ -1269,6 +1276,105 @@ TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
   EXPECT_EQ(heard[1].status, ChangeStatus::Retracted);
   EXPECT_EQ(heard[1].id, id);
   EXPECT_TRUE(det.events().empty());
+}
+
+TEST(ChangeDetector, AnnouncesOnlyWhatHeldOverTheSettleFrames) {
+  Config cfg;
+  cfg.event_settle_frames = 5;
+  ChangeDetector det(std::make_shared<const Map>(beforeMap()), cfg);
+  std::vector<ChangeEvent> heard;
+  det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
+  Map cur{cfg};
+  const Intrinsics k;
+  const auto poses = test::ringPoses({0, 0, kTable}, 0.9, 0.55, 8);
+  for (std::size_t i = 0; i < 4; ++i)
+    cur.integrate(test::renderDepth(afterScene(), k, poses[i]), poses[i]);
+  det.update(cur);  // found over 0 frames: pending
+  EXPECT_TRUE(heard.empty());
+  for (std::size_t i = 4; i < 8; ++i)
+    cur.integrate(test::renderDepth(afterScene(), k, poses[i]), poses[i]);
+  det.update(cur);  // 4 frames
+  EXPECT_TRUE(heard.empty());
+  EXPECT_TRUE(det.events().empty());
+  cur.integrate(test::renderDepth(afterScene(), k, poses[0]), poses[0]);
+  det.update(cur);  // 5 frames: every result that kept its type is announced, once
+  const std::size_t settled = heard.size();
+  EXPECT_GT(settled, 0u);
+  for (const auto& e : heard) {
+    EXPECT_EQ(e.status, ChangeStatus::New);
+    EXPECT_EQ(e.frame, 9u);
+  }
+  // The end of the session settles the rest: the events are detectChanges' on the same maps.
+  det.finish(cur);
+  const ChangeSet offline = detectChanges(det.reference(), cur, cfg);
+  ASSERT_EQ(det.events().size(), offline.events.size());
+  EXPECT_EQ(offline.events.size(), 3u);
+  const std::size_t after_finish = heard.size();
+  det.finish(cur);  // nothing left to settle
+  EXPECT_EQ(heard.size(), after_finish);
+}
+
+/// A detector that announces what held over 5 frames, what its callbacks heard, the current
+/// map, and the table without the box and with it.
+struct Settling {
+  Config cfg = [] {
+    Config c;
+    c.event_settle_frames = 5;
+    return c;
+  }();
+  ChangeDetector det{beforeMap(), cfg};
+  std::vector<ChangeEvent> heard;
+  Map cur{cfg};
+  AnalyticScene without = test::tableWith({cylinderAt(-0.15, -0.10)});
+  AnalyticScene with = test::tableWith({box(), cylinderAt(-0.15, -0.10)});
+  Settling() {
+    det.onEvent([this](const ChangeEvent& e) { heard.push_back(e); });
+  }
+  void see(const AnalyticScene& scene, const std::vector<Pose>& poses) {
+    for (const Pose& T : poses) cur.integrate(test::renderDepth(scene, Intrinsics{}, T), T);
+  }
+};
+
+TEST(ChangeDetector, AResultLaterFramesContradictIsNeverAnnounced) {
+  // As RetractsAChangeLaterFramesContradict, with settling: the removal found from the first
+  // views is dropped when the box is seen again, before anyone heard of it.
+  Settling s;
+  s.see(s.without, test::ringPoses({0, 0, kTable}, 0.9, 0.55, 4));
+  s.det.update(s.cur);
+  EXPECT_TRUE(s.heard.empty());
+  for (int round = 0; round < 4; ++round)
+    s.see(s.with, test::ringPoses({0, 0, kTable}, 0.85, 0.5, 8));
+  s.det.update(s.cur);
+  s.det.finish(s.cur);
+  EXPECT_TRUE(s.heard.empty());
+  EXPECT_TRUE(s.det.events().empty());
+}
+
+TEST(ChangeDetector, RetractsOnlyOnceTheContradictionHeld) {
+  Settling s;
+  const auto ring = test::ringPoses({0, 0, kTable}, 0.9, 0.55, 4);
+  for (int round = 0; round < 2; ++round) {
+    s.see(s.without, ring);
+    s.det.update(s.cur);  // frames 4, then 8: the removal held over 4 frames
+  }
+  EXPECT_TRUE(s.heard.empty());
+  s.see(s.without, {ring[0]});
+  s.det.update(s.cur);  // 5 frames
+  std::vector<ChangeEvent>& heard = s.heard;
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_EQ(heard[0].type, ChangeType::Removed);
+  EXPECT_EQ(heard[0].status, ChangeStatus::New);
+  for (int round = 0; round < 4; ++round)
+    s.see(s.with, test::ringPoses({0, 0, kTable}, 0.85, 0.5, 8));
+  s.det.update(s.cur);  // not found any more, over 0 frames: still announced
+  EXPECT_EQ(heard.size(), 1u);
+  EXPECT_EQ(s.det.events().size(), 1u);
+  s.see(s.with, test::ringPoses({0, 0, kTable}, 0.85, 0.5, 5));
+  s.det.update(s.cur);  // 5 frames: retracted
+  ASSERT_EQ(heard.size(), 2u);
+  EXPECT_EQ(heard[1].status, ChangeStatus::Retracted);
+  EXPECT_EQ(heard[1].id, heard[0].id);
+  EXPECT_TRUE(s.det.events().empty());
 }
 
 }  // namespace

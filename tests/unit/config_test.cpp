@@ -30,6 +30,7 @@ TEST(Config, PaperDefaults) {
   EXPECT_EQ(c.bins_theta * c.bins_phi * c.bins_lambda * 3 + 1, 451);
   EXPECT_DOUBLE_EQ(c.alpha, 2.0);
   EXPECT_DOUBLE_EQ(c.delta_blob, 0.9);
+  EXPECT_EQ(c.event_settle_frames, 10);
   EXPECT_DOUBLE_EQ(c.sdf_sigma_voxels, 2.0);
   EXPECT_NEAR(c.truncation(), 0.028, 1e-12);
   EXPECT_NO_THROW(planesdf::validateConfig(c));

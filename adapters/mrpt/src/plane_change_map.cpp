@@ -71,8 +71,14 @@ void CPlaneChangeMap::loadReference(const std::string& path) {
 }
 
 std::size_t CPlaneChangeMap::detectChanges() {
-  if (!detector_) return 0;
-  const UpdateStats stats = detector_->update(map_);
+  return detector_ ? publish(detector_->update(map_)) : 0;
+}
+
+std::size_t CPlaneChangeMap::finishChanges() {
+  return detector_ ? publish(detector_->finish(map_)) : 0;
+}
+
+std::size_t CPlaneChangeMap::publish(const UpdateStats& stats) {
   for (const ChangeEvent& e : stats.notifications) publishEvent(mrptEventPlaneChange(*this, e));
   return stats.notifications.size();
 }

@@ -72,6 +72,9 @@ class CPlaneChangeMap : public mrpt::maps::CMetricMap {
   /// Runs the detector on the scans fused so far and publishes its notifications; returns how
   /// many there were. Does nothing (returns 0) without a reference.
   std::size_t detectChanges();
+  /// As detectChanges(), at the end of the session: every result settles now instead of after
+  /// Config::event_settle_frames (ChangeDetector::finish).
+  std::size_t finishChanges();
 
   /// The current session's map.
   const Map& map() const { return map_; }
@@ -113,6 +116,8 @@ class CPlaneChangeMap : public mrpt::maps::CMetricMap {
   }
 
   Config cfg_;
+  std::size_t publish(const UpdateStats& stats);
+
   Map map_;
   std::optional<ChangeDetector> detector_;
   int detect_every_ = 1;

@@ -8,7 +8,8 @@
 /// down to the object's lowest point (`solid`, the default), or only the voxels holding its
 /// points. A removed side (Removed, the old place of Moved, the object Replaced) is the
 /// reference region; an added side (Added, the new place of Moved, the replacing object) is the
-/// current region. Retracted notifications are skipped.
+/// current region. applyChanges skips Retracted notifications: it applies a final set of
+/// events. To follow a ChangeDetector's notifications as they come, use an OctreeChangeLayer.
 ///
 /// Writing: writeOcTree writes `.ot` (AbstractOcTree::write: full node data, so a ColorOcTree
 /// keeps its colours). OctoMap's `.bt` format (OcTree::writeBinaryConst) keeps occupancy only:
@@ -21,7 +22,11 @@
 
 #include <cstddef>
 #include <limits>
+#include <map>
+#include <optional>
 #include <string>
+#include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include "planesdf/change.hpp"
@@ -57,6 +62,36 @@ OctreeChangeStats applyChanges(const std::vector<ChangeEvent>& events, octomap::
                                const OctreeChangeOptions& options = {});
 OctreeChangeStats applyChanges(const ChangeSet& set, octomap::OcTree& tree,
                                const OctreeChangeOptions& options = {});
+
+/// A user's OcTree kept equal to the tree it started as with the active changes applied, as
+/// applyChanges would apply them, while a ChangeDetector's notifications arrive: New applies a
+/// change, Updated replaces its earlier state, Retracted undoes it. The layer remembers the value
+/// each voxel had before a change first touched it. The tree must outlive the layer, and only
+/// the layer may write the voxels the active changes cover.
+class OctreeChangeLayer {
+ public:
+  explicit OctreeChangeLayer(octomap::OcTree& tree, const OctreeChangeOptions& options = {});
+
+  /// Applies one notification (see the class comment) and updates the inner nodes.
+  void apply(const ChangeEvent& notification);
+  /// The changes applied now (latest state of each, by id).
+  const std::map<int, ChangeEvent>& active() const { return active_; }
+
+ private:
+  struct Keys {
+    octomap::KeySet freed, occupied;
+  };
+  void restore(const octomap::OcTreeKey& key);
+
+  octomap::OcTree& tree_;
+  OctreeChangeOptions options_;
+  float free_update_ = 0.0f, occupied_update_ = 0.0f;
+  std::map<int, ChangeEvent> active_;
+  std::map<int, Keys> keys_;  ///< the voxels of each active change
+  /// Per voxel some change touched: its log-odds before, or none when it was not in the tree.
+  std::unordered_map<octomap::OcTreeKey, std::optional<float>, octomap::OcTreeKey::KeyHash>
+      original_;
+};
 
 /// Marks the voxels of both sides of every event occupied in `tree` and colours them with
 /// planesdf::changeColor (added red, removed blue, moved yellow, replaced magenta; a moved
