@@ -387,6 +387,13 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
 /// num_voxels, num_points, key_voxels, scored, mean_similarity, verdict) for the sides present.
 std::string changesToJson(const std::vector<ChangeEvent>& events, int indent = 2);
 
+/// The events whole (every field, both sides' columns, voxels and points) in a binary form, for
+/// a host that saves a ChangeDetector's state (ChangeDetector::restore).
+std::string serializeEvents(const std::vector<ChangeEvent>& events);
+/// serializeEvents' inverse. Throws planesdf::Error(what, "corrupt change events: ...") on bytes
+/// it did not write.
+std::vector<ChangeEvent> deserializeEvents(const std::string& bytes, const std::string& what);
+
 /// Colour of a change type in pictures and PLYs (RGB): added red, removed blue, moved yellow,
 /// replaced magenta.
 std::array<std::uint8_t, 3> changeColor(ChangeType t);

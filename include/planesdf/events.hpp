@@ -22,7 +22,6 @@
 #include <functional>
 #include <map>
 #include <memory>
-#include <tuple>
 #include <vector>
 
 #include "planesdf/change.hpp"
@@ -30,6 +29,10 @@
 #include "planesdf/map.hpp"
 
 namespace planesdf {
+
+namespace detail {
+class SessionComparison;
+}
 
 /// What one ChangeDetector::update() call did.
 struct UpdateStats {
@@ -51,6 +54,11 @@ class ChangeDetector {
   /// Keeps a copy of `reference` (or takes it), as above.
   ChangeDetector(const Map& reference, const Config& cfg);
   ChangeDetector(Map&& reference, const Config& cfg);
+  ChangeDetector(const ChangeDetector& other);
+  ChangeDetector(ChangeDetector&& other) noexcept;
+  ChangeDetector& operator=(const ChangeDetector& other);
+  ChangeDetector& operator=(ChangeDetector&& other) noexcept;
+  ~ChangeDetector();
 
   /// Adds a callback; every notification goes to every callback, in the order they were added,
   /// on the thread calling update(). A callback must not call update().
@@ -68,21 +76,17 @@ class ChangeDetector {
 
   /// The announced changes (their state as last notified), ordered by id.
   std::vector<ChangeEvent> events() const;
+  /// The id the next announced change gets (ids are never reused).
+  int nextId() const { return next_id_; }
+  /// Continues a saved detector (same reference and config): `events` (as events() gave them)
+  /// are the announced changes, `next_id` as nextId() gave it. Results of later updates that
+  /// are the same changes keep their ids and are notified only when they differ. Throws
+  /// planesdf::Error("events", ...) on duplicate ids or ids not below `next_id`.
+  void restore(const std::vector<ChangeEvent>& events, int next_id);
   const Map& reference() const { return *reference_; }
   const Config& config() const { return cfg_; }
 
  private:
-  struct PairCache {
-    std::uint64_t current_revision = 0;
-    std::vector<CandidateChange> candidates;
-    Pose T_target_source = Pose::Identity();  ///< the transform the comparison used
-    SessionCorrection correction;             ///< the session correction it started from
-  };
-  struct CurrentMaps {
-    PlaneMaps maps;
-    std::size_t num_planes = 0;  ///< planes of the map when computed (exclusion uses them)
-  };
-
   /// A change found by recent updates: announced (in active_) or pending.
   struct Track {
     ChangeEvent shown;   ///< announced: as last notified
@@ -95,24 +99,16 @@ class ChangeDetector {
   };
 
   UpdateStats run(const Map& current, int settle_frames);
-  std::vector<ChangeEvent> compare(const Map& current, UpdateStats& stats);
   void settle(std::vector<ChangeEvent> fresh, std::uint64_t now, int settle_frames,
               UpdateStats& stats);
 
   std::shared_ptr<const Map> reference_;
   Config cfg_;
-  DetectOptions options_;
   std::vector<Callback> callbacks_;
-  std::vector<PlaneMaps> reference_maps_;
-  std::map<int, CurrentMaps> current_maps_;
-  /// (reference→current?, source id, target id) -> candidates
-  std::map<std::tuple<bool, int, int>, PairCache> pairs_;
+  /// The session comparison (detectChanges'), with what it keeps from update to update.
+  std::unique_ptr<detail::SessionComparison> comparison_;
   std::map<int, Track> active_;  ///< announced, by id
   std::vector<Track> pending_;   ///< found, not announced yet
-  /// sessionCorrection, and the (current plane id, revision) of the forward pairs it was
-  /// estimated from (recomputed when they change).
-  SessionCorrection correction_;
-  std::vector<std::pair<int, std::uint64_t>> correction_key_;
   int next_id_ = 1;
 };
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <map>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -9,6 +10,7 @@
 #include "planesdf/config_io.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/events.hpp"
+#include "session_comparison.hpp"
 
 namespace planesdf {
 namespace {
@@ -68,11 +70,26 @@ ChangeDetector::ChangeDetector(std::shared_ptr<const Map> reference, const Confi
     : reference_(std::move(reference)), cfg_(cfg) {
   if (!reference_) throw Error("reference map", "null");
   validateConfig(cfg_, "config");
-  const Map& ref = *reference_;
-  requireGeometry(cfg_, ref, "config", "the reference map");
-  for (const PlaneSdf& p : ref.planes())
-    reference_maps_.push_back(
-        computePlaneMaps(p, ref.planes(), cfg_, &ref.points(), surfaceRimCells(ref)));
+  requireGeometry(cfg_, *reference_, "config", "the reference map");
+  comparison_ = std::make_unique<detail::SessionComparison>(*reference_, cfg_, DetectOptions{});
+}
+
+ChangeDetector::ChangeDetector(const ChangeDetector& other)
+    : reference_(other.reference_),
+      cfg_(other.cfg_),
+      callbacks_(other.callbacks_),
+      comparison_(std::make_unique<detail::SessionComparison>(*other.comparison_)),
+      active_(other.active_),
+      pending_(other.pending_),
+      next_id_(other.next_id_) {}
+
+ChangeDetector::ChangeDetector(ChangeDetector&& other) noexcept = default;
+ChangeDetector& ChangeDetector::operator=(ChangeDetector&& other) noexcept = default;
+ChangeDetector::~ChangeDetector() = default;
+
+ChangeDetector& ChangeDetector::operator=(const ChangeDetector& other) {
+  if (this != &other) *this = ChangeDetector(other);
+  return *this;
 }
 
 void ChangeDetector::onEvent(Callback callback) {
@@ -83,6 +100,20 @@ std::vector<ChangeEvent> ChangeDetector::events() const {
   std::vector<ChangeEvent> out;
   for (const auto& [id, t] : active_) out.push_back(t.shown);
   return out;
+}
+
+void ChangeDetector::restore(const std::vector<ChangeEvent>& events, int next_id) {
+  std::map<int, Track> active;
+  for (const ChangeEvent& e : events) {
+    if (e.id < 1 || e.id >= next_id)
+      throw Error("events", "change id " + std::to_string(e.id) + " is not in [1, next id " +
+                                std::to_string(next_id) + ")");
+    if (!active.emplace(e.id, Track{e, e}).second)
+      throw Error("events", "change id " + std::to_string(e.id) + " appears twice");
+  }
+  active_ = std::move(active);
+  pending_.clear();
+  next_id_ = next_id;
 }
 
 UpdateStats ChangeDetector::update(const Map& current) {
@@ -97,7 +128,10 @@ UpdateStats ChangeDetector::run(const Map& current, int settle_frames) {
   const auto t0 = std::chrono::steady_clock::now();
   UpdateStats stats;
   requireGeometry(cfg_, current, "current map", "the current map");
-  settle(compare(current, stats), current.frames(), settle_frames, stats);
+  detail::SessionComparison::Run r = comparison_->run(current);
+  stats.pairs_checked = r.pairs_checked;
+  stats.pairs_reused = r.pairs_reused;
+  settle(std::move(r.set.events), current.frames(), settle_frames, stats);
   std::stable_sort(stats.notifications.begin(), stats.notifications.end(),
                    [](const ChangeEvent& a, const ChangeEvent& b) { return a.id < b.id; });
   for (const ChangeEvent& e : stats.notifications)
@@ -105,89 +139,6 @@ UpdateStats ChangeDetector::run(const Map& current, int settle_frames) {
   stats.milliseconds =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   return stats;
-}
-
-std::vector<ChangeEvent> ChangeDetector::compare(const Map& current, UpdateStats& stats) {
-  const Map& reference = *reference_;
-  const auto& cp = current.planes();
-
-  // Current plane maps, recomputed when the plane's volume (or the plane set) changed.
-  const auto currentMaps = [&](int id) -> const PlaneMaps& {
-    const PlaneSdf& p = cp[static_cast<std::size_t>(id)];
-    auto it = current_maps_.find(id);
-    if (it == current_maps_.end() || it->second.maps.revision != p.volume.revision() ||
-        it->second.num_planes != cp.size()) {
-      CurrentMaps m{computePlaneMaps(p, cp, cfg_, &current.points(), surfaceRimCells(current)),
-                    cp.size()};
-      it = current_maps_.insert_or_assign(id, std::move(m)).first;
-    }
-    return it->second.maps;
-  };
-
-  // The session-wide localisation correction (see sessionCorrection), re-estimated only when a
-  // current plane it depends on changed.
-  const std::vector<PlaneMatch> forward_matches =
-      uniqueMatches(registerPlanes(reference, current, cfg_));
-  if (cfg_.refine_inplane) {
-    std::vector<std::pair<int, std::uint64_t>> key;
-    for (const PlaneMatch& m : forward_matches) {
-      const PlaneSdf& p = cp[static_cast<std::size_t>(m.target_id)];
-      key.emplace_back(m.target_id, p.volume.revision());
-    }
-    key.emplace_back(-1, cp.size());
-    if (key != correction_key_) {
-      correction_ = sessionCorrection(
-          reference, current, forward_matches,
-          [&](bool ref, int id) -> const PlaneMaps& {
-            return ref ? reference_maps_[static_cast<std::size_t>(id)] : currentMaps(id);
-          },
-          cfg_);
-      correction_key_ = std::move(key);
-    }
-  }
-
-  std::map<std::tuple<bool, int, int>, PairCache> next;
-  RefinedTransforms refined;
-  for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
-    const Map& src = forward ? reference : current;
-    const Map& tgt = forward ? current : reference;
-    for (PlaneMatch m : forward ? forward_matches : uniqueMatches(registerPlanes(src, tgt, cfg_))) {
-      if (forward) m = corrected(m, reference, current, correction_);
-      const int ref_id = forward ? m.source_id : m.target_id;
-      const int cur_id = forward ? m.target_id : m.source_id;
-      const std::uint64_t rev = cp[static_cast<std::size_t>(cur_id)].volume.revision();
-      const auto key = std::make_tuple(forward, m.source_id, m.target_id);
-      const auto it = pairs_.find(key);
-      const auto maps_it = current_maps_.find(cur_id);
-      if (it != pairs_.end() && it->second.current_revision == rev &&
-          it->second.correction == correction_ && maps_it != current_maps_.end() &&
-          maps_it->second.num_planes == cp.size()) {
-        ++stats.pairs_reused;
-        next[key] = it->second;
-        if (forward) refined[{ref_id, cur_id}] = it->second.T_target_source;
-        continue;
-      }
-      ++stats.pairs_checked;
-      const PlaneMaps& ref_maps = reference_maps_[static_cast<std::size_t>(ref_id)];
-      const PlaneMaps& cur_maps = currentMaps(cur_id);
-      PlanePairResult res;
-      PairCache pc;
-      pc.current_revision = rev;
-      pc.correction = correction_;
-      pc.candidates =
-          compareMatchedPair(reference, current, forward, m, forward ? ref_maps : cur_maps,
-                             forward ? cur_maps : ref_maps, refined, cfg_, options_, &res);
-      pc.T_target_source = res.match.T_target_source_local;
-      next[key] = std::move(pc);
-    }
-  }
-  pairs_ = std::move(next);
-
-  std::vector<CandidateChange> removed, added;
-  for (const auto& [key, pc] : pairs_)
-    for (const CandidateChange& c : pc.candidates)
-      (std::get<0>(key) ? removed : added).push_back(c);
-  return assembleEvents(std::move(removed), std::move(added), cfg_);
 }
 
 void ChangeDetector::settle(std::vector<ChangeEvent> fresh, std::uint64_t now, int settle_frames,

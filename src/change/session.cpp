@@ -15,6 +15,7 @@
 #include "../parallel.hpp"
 #include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
+#include "session_comparison.hpp"
 
 namespace planesdf {
 
@@ -213,41 +214,89 @@ PlaneMatch corrected(PlaneMatch match, const Map& reference, const Map& current,
   return match;
 }
 
-ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
-                        const DetectOptions& options) {
-  const auto t0 = std::chrono::steady_clock::now();
-  if (reference.config().voxel_size != current.config().voxel_size)
-    throw Error("", "the reference and current maps have different voxel sizes (" +
-                        std::to_string(reference.config().voxel_size) + " vs " +
-                        std::to_string(current.config().voxel_size) + " m)");
-  ChangeSet set;
-  const auto& rp = reference.planes();
-  const auto& cp = current.planes();
-  std::vector<PlaneMaps> rmaps(rp.size()), cmaps(cp.size());
-  std::vector<bool> rdone(rp.size(), false), cdone(cp.size(), false);
-  const auto mapsOf = [&](bool ref, int id) -> const PlaneMaps& {
-    auto& done = ref ? rdone : cdone;
-    auto& maps = ref ? rmaps : cmaps;
-    const auto i = static_cast<std::size_t>(id);
-    if (!done[i]) {
-      const Map& m = ref ? reference : current;
-      maps[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg, &m.points(),
-                                 surfaceRimCells(m));
-      done[i] = true;
-    }
-    return maps[i];
-  };
+namespace detail {
 
-  std::vector<CandidateChange> removed, added;
-  RefinedTransforms refined;
+SessionComparison::SessionComparison(const Map& reference, const Config& cfg,
+                                     const DetectOptions& options)
+    : reference_(&reference),
+      cfg_(cfg),
+      options_(options),
+      reference_maps_(reference.planes().size()),
+      reference_done_(reference.planes().size(), false),
+      reference_chunks_(std::make_shared<PointChunks>()) {
+  reference_chunks_->source = &reference.points();
+}
+
+bool SessionComparison::currentMapsValid(const Map& current, int id) const {
+  const auto it = current_maps_.find(id);
+  return it != current_maps_.end() &&
+         it->second.maps.revision ==
+             current.planes()[static_cast<std::size_t>(id)].volume.revision() &&
+         it->second.num_planes == current.planes().size();
+}
+
+void SessionComparison::computeMaps(const Map& current, std::vector<std::pair<bool, int>> needed) {
+  std::sort(needed.begin(), needed.end());
+  needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
+  needed.erase(std::remove_if(needed.begin(), needed.end(),
+                              [&](const std::pair<bool, int>& n) {
+                                return n.first ? reference_done_[static_cast<std::size_t>(n.second)]
+                                               : currentMapsValid(current, n.second);
+                              }),
+               needed.end());
+  const auto& rp = reference_->planes();
+  const auto& cp = current.planes();
+  // Largest volumes first (the threads take the next plane as they finish: the long ones start
+  // early instead of last).
+  const auto blocksOf = [&](const std::pair<bool, int>& n) {
+    return (n.first ? rp : cp)[static_cast<std::size_t>(n.second)].volume.numBlocks();
+  };
+  std::stable_sort(needed.begin(), needed.end(),
+                   [&](const auto& a, const auto& b) { return blocksOf(a) > blocksOf(b); });
+  std::vector<PlaneMaps> computed(needed.size());
+  parallelFor(static_cast<int>(needed.size()), cfg_.threads, [&](int k) {
+    const auto [ref, id] = needed[static_cast<std::size_t>(k)];
+    const auto i = static_cast<std::size_t>(id);
+    const Map& m = ref ? *reference_ : current;
+    computed[static_cast<std::size_t>(k)] =
+        computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg_, &m.points(), surfaceRimCells(m));
+  });
+  for (std::size_t k = 0; k < needed.size(); ++k) {
+    const auto [ref, id] = needed[k];
+    if (ref) {
+      reference_maps_[static_cast<std::size_t>(id)] = std::move(computed[k]);
+      reference_done_[static_cast<std::size_t>(id)] = true;
+      if (reference_maps_[static_cast<std::size_t>(id)].points)
+        reference_maps_[static_cast<std::size_t>(id)].points->chunks = reference_chunks_;
+    } else {
+      current_maps_.insert_or_assign(id, CurrentMaps{std::move(computed[k]), cp.size()});
+    }
+  }
+  // One chunk index of the current map's points for all its planes' maps (built on first use).
+  auto chunks = std::make_shared<PointChunks>();
+  chunks->source = &current.points();
+  for (auto& [id, m] : current_maps_)
+    if (m.maps.points) m.maps.points->chunks = chunks;
+}
+
+const PlaneMaps& SessionComparison::maps(bool reference, int id) const {
+  return reference ? reference_maps_[static_cast<std::size_t>(id)] : current_maps_.at(id).maps;
+}
+
+SessionComparison::Run SessionComparison::run(const Map& current) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const Map& reference = *reference_;
+  const auto& cp = current.planes();
+  Run out;
+  ChangeSet& set = out.set;
   const std::vector<PlaneMatch> forward_matches =
-      uniqueMatches(registerPlanes(reference, current, cfg));
+      uniqueMatches(registerPlanes(reference, current, cfg_));
   const std::vector<PlaneMatch> backward_matches =
-      uniqueMatches(registerPlanes(current, reference, cfg));
+      uniqueMatches(registerPlanes(current, reference, cfg_));
   const auto msSince = [](std::chrono::steady_clock::time_point t) {
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
   };
-  // The maps of every matched plane, in parallel (computed once; read-only from here on).
+  // The maps of every matched plane (read-only from here on).
   auto tp = std::chrono::steady_clock::now();
   {
     std::vector<std::pair<bool, int>> needed;
@@ -259,77 +308,103 @@ ChangeSet detectChanges(const Map& reference, const Map& current, const Config& 
       needed.emplace_back(false, m.source_id);
       needed.emplace_back(true, m.target_id);
     }
-    std::sort(needed.begin(), needed.end());
-    needed.erase(std::unique(needed.begin(), needed.end()), needed.end());
-    // Largest volumes first (the threads take the next plane as they finish: the long ones
-    // start early instead of last).
-    const auto blocksOf = [&](const std::pair<bool, int>& n) {
-      return (n.first ? rp : cp)[static_cast<std::size_t>(n.second)].volume.numBlocks();
-    };
-    std::stable_sort(needed.begin(), needed.end(),
-                     [&](const auto& a, const auto& b) { return blocksOf(a) > blocksOf(b); });
-    parallelFor(static_cast<int>(needed.size()), cfg.threads, [&](int k) {
-      const auto [ref, id] = needed[static_cast<std::size_t>(k)];
-      const auto i = static_cast<std::size_t>(id);
-      const Map& m = ref ? reference : current;
-      (ref ? rmaps : cmaps)[i] = computePlaneMaps(ref ? rp[i] : cp[i], ref ? rp : cp, cfg,
-                                                  &m.points(), surfaceRimCells(m));
-    });
-    for (const auto& [ref, id] : needed) (ref ? rdone : cdone)[static_cast<std::size_t>(id)] = true;
-    // One chunk index of each map's points for all its planes' maps (built on first use).
-    for (const bool ref : {true, false}) {
-      auto chunks = std::make_shared<detail::PointChunks>();
-      chunks->source = &(ref ? reference : current).points();
-      for (PlaneMaps& m : ref ? rmaps : cmaps)
-        if (m.points) m.points->chunks = chunks;
-    }
+    computeMaps(current, std::move(needed));
   }
   set.maps_ms = msSince(tp);
+  // The session-wide correction, estimated again only when a current plane it rests on changed.
   tp = std::chrono::steady_clock::now();
-  const SessionCorrection correction =
-      cfg.refine_inplane
-          ? sessionCorrection(
-                reference, current, forward_matches,
-                [&](bool ref, int id) -> const PlaneMaps& { return mapsOf(ref, id); }, cfg)
-          : SessionCorrection{};
+  if (cfg_.refine_inplane) {
+    std::vector<std::pair<int, std::uint64_t>> key;
+    for (const PlaneMatch& m : forward_matches)
+      key.emplace_back(m.target_id, cp[static_cast<std::size_t>(m.target_id)].volume.revision());
+    key.emplace_back(-1, cp.size());
+    if (!has_correction_ || key != correction_key_) {
+      correction_ = sessionCorrection(
+          reference, current, forward_matches,
+          [&](bool ref, int id) -> const PlaneMaps& { return maps(ref, id); }, cfg_);
+      correction_key_ = std::move(key);
+      has_correction_ = true;
+    }
+  }
   set.correction_ms = msSince(tp);
+
+  std::vector<CandidateChange> removed, added;
+  std::map<std::tuple<bool, int, int>, PairCache> next;
+  RefinedTransforms refined;
   for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
     tp = std::chrono::steady_clock::now();
     std::vector<PlaneMatch> matches = forward ? forward_matches : backward_matches;
     if (forward)
-      for (PlaneMatch& m : matches) m = corrected(m, reference, current, correction);
-    // The pairs of one direction are independent: in parallel, each with its own share of the
-    // refined transforms, merged in pair order.
-    std::vector<PlanePairResult> results(matches.size());
-    std::vector<std::vector<CandidateChange>> found(matches.size());
-    std::vector<RefinedTransforms> own(matches.size());
-    // Largest source maps first (results stay in pair order).
-    std::vector<std::size_t> order(matches.size());
-    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+      for (PlaneMatch& m : matches) m = corrected(m, reference, current, correction_);
+    // A pair whose current volume and correction are as when it was compared keeps its result.
+    const auto keyOf = [&](const PlaneMatch& m) {
+      return std::make_tuple(forward, m.source_id, m.target_id);
+    };
+    const auto revisionOf = [&](const PlaneMatch& m) {
+      return cp[static_cast<std::size_t>(forward ? m.target_id : m.source_id)].volume.revision();
+    };
+    std::vector<const PairCache*> kept(matches.size(), nullptr);
+    std::vector<std::size_t> order;
+    for (std::size_t i = 0; i < matches.size(); ++i) {
+      const auto it = pairs_.find(keyOf(matches[i]));
+      if (it != pairs_.end() && it->second.current_revision == revisionOf(matches[i]) &&
+          it->second.correction == correction_ && it->second.num_planes == cp.size())
+        kept[i] = &it->second;
+      else
+        order.push_back(i);
+    }
+    // The pairs to compare are independent: in parallel, each with its own share of the refined
+    // transforms, merged in pair order; largest source maps first (results stay in pair order).
     const auto cellsOf = [&](std::size_t i) {
-      return mapsOf(forward, matches[i].source_id).heights.numCells();
+      return maps(forward, matches[i].source_id).heights.numCells();
     };
     std::stable_sort(order.begin(), order.end(),
                      [&](std::size_t a, std::size_t b) { return cellsOf(a) > cellsOf(b); });
-    parallelFor(static_cast<int>(matches.size()), cfg.threads, [&](int k) {
+    std::vector<PlanePairResult> results(matches.size());
+    std::vector<std::vector<CandidateChange>> found(matches.size());
+    std::vector<RefinedTransforms> own(matches.size());
+    parallelFor(static_cast<int>(order.size()), cfg_.threads, [&](int k) {
       const std::size_t i = order[static_cast<std::size_t>(k)];
       const PlaneMatch& m = matches[i];
       if (!forward) own[i] = refined;  // read only backwards
       found[i] =
-          compareMatchedPair(reference, current, forward, m, mapsOf(forward, m.source_id),
-                             mapsOf(!forward, m.target_id), own[i], cfg, options, &results[i]);
+          compareMatchedPair(reference, current, forward, m, maps(forward, m.source_id),
+                             maps(!forward, m.target_id), own[i], cfg_, options_, &results[i]);
     });
     for (std::size_t i = 0; i < matches.size(); ++i) {
-      if (forward) refined.insert(own[i].begin(), own[i].end());
-      for (auto& x : found[i]) (forward ? removed : added).push_back(std::move(x));
-      set.pairs.push_back(std::move(results[i]));
+      const PlaneMatch& m = matches[i];
+      PairCache pc;
+      if (kept[i] != nullptr) {
+        pc = *kept[i];
+        ++out.pairs_reused;
+        if (forward) refined[{m.source_id, m.target_id}] = pc.T_target_source;
+      } else {
+        ++out.pairs_checked;
+        if (forward) refined.insert(own[i].begin(), own[i].end());
+        pc = PairCache{revisionOf(m), std::move(found[i]), results[i].match.T_target_source_local,
+                       correction_, cp.size()};
+        set.pairs.push_back(std::move(results[i]));
+      }
+      for (const CandidateChange& c : pc.candidates) (forward ? removed : added).push_back(c);
+      next[keyOf(m)] = std::move(pc);
     }
     (forward ? set.forward_ms : set.backward_ms) = msSince(tp);
   }
-  set.events = assembleEvents(std::move(removed), std::move(added), cfg);
-  set.milliseconds =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  return set;
+  pairs_ = std::move(next);
+  set.events = assembleEvents(std::move(removed), std::move(added), cfg_);
+  set.milliseconds = msSince(t0);
+  return out;
+}
+
+}  // namespace detail
+
+ChangeSet detectChanges(const Map& reference, const Map& current, const Config& cfg,
+                        const DetectOptions& options) {
+  if (reference.config().voxel_size != current.config().voxel_size)
+    throw Error("", "the reference and current maps have different voxel sizes (" +
+                        std::to_string(reference.config().voxel_size) + " vs " +
+                        std::to_string(current.config().voxel_size) + " m)");
+  return detail::SessionComparison(reference, cfg, options).run(current).set;
 }
 
 }  // namespace planesdf

@@ -196,7 +196,18 @@ TEST(MrptChangeMap, SerializationRoundTrip) {
   EXPECT_EQ(back->map().frames(), r.map->map().frames());
   EXPECT_EQ(back->map().planes().size(), r.map->map().planes().size());
   EXPECT_TRUE(back->hasReference());
-  EXPECT_EQ(back->finishChanges(), r.map->changes().size());  // all reported again as new
+  // The announced changes come back with their ids, and the same maps notify nothing new.
+  const std::vector<ChangeEvent> before = r.map->changes(), after = back->changes();
+  ASSERT_EQ(after.size(), before.size());
+  ASSERT_FALSE(before.empty());
+  for (std::size_t i = 0; i < before.size(); ++i) {
+    EXPECT_EQ(after[i].id, before[i].id);
+    EXPECT_EQ(after[i].type, before[i].type);
+    EXPECT_EQ(after[i].current.points, before[i].current.points);
+    EXPECT_EQ(after[i].reference.columns, before[i].reference.columns);
+  }
+  EXPECT_EQ(back->finishChanges(), 0u);
+  EXPECT_EQ(back->changes().size(), before.size());
 }
 
 }  // namespace

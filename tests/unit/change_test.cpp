@@ -1252,6 +1252,78 @@ TEST(ChangeDetector, AConfigOrCurrentMapOfAnotherGeometryIsAnError) {
   }
 }
 
+TEST(ChangeDetector, ARestoredDetectorKeepsItsIdsAndNotifiesNothingNew) {
+  const Config cfg = immediate();
+  auto reference = std::make_shared<const Map>(beforeMap());
+  ChangeDetector first(reference, cfg);
+  Map cur{cfg};
+  const Intrinsics k;
+  for (const Pose& T : test::ringPoses({0, 0, kTable}, 0.9, 0.55, 8))
+    cur.integrate(test::renderDepth(afterScene(), k, T), T);
+  first.update(cur);
+  const std::vector<ChangeEvent> saved =
+      deserializeEvents(serializeEvents(first.events()), "saved events");
+  ASSERT_EQ(saved.size(), 3u);
+
+  ChangeDetector second(reference, cfg);
+  second.restore(saved, first.nextId());
+  EXPECT_TRUE(second.update(cur).notifications.empty());
+  ASSERT_EQ(second.events().size(), 3u);
+  for (std::size_t i = 0; i < saved.size(); ++i) EXPECT_EQ(second.events()[i].id, saved[i].id);
+  EXPECT_EQ(second.nextId(), first.nextId());
+  // Ids that could come again are refused.
+  EXPECT_THROW(second.restore(saved, saved.back().id), Error);
+  EXPECT_THROW(second.restore({saved[0], saved[0]}, first.nextId()), Error);
+}
+
+TEST(EventIo, SerializedEventsComeBackWholeAndOtherBytesAreRefused) {
+  ChangeEvent e;
+  e.id = 7;
+  e.type = ChangeType::Replaced;
+  e.status = ChangeStatus::Updated;
+  e.confidence = 0.8125;
+  e.frame = 42;
+  for (ChangeRegion* r : {&e.reference, &e.current}) {
+    r->plane_id = r == &e.reference ? 3 : 5;
+    r->columns = {{1, 2}, {-3, 4}};
+    r->voxels = {{1, 2, 3}, {-4, 5, -6}};
+    r->points = {{0.5f, -0.25f, 1.0f}};
+    r->bbox = Eigen::AlignedBox3d(Eigen::Vector3d(-1, -2, -3), Eigen::Vector3d(1, 2, 3));
+    r->centroid = Eigen::Vector3d(0.1, 0.2, 0.3);
+    r->shape.cells = 12;
+    r->shape.area = 0.01;
+    r->shape.deciles = {0.1, 0.2};
+    r->key_voxels = 9;
+    r->scored = 8;
+    r->mean_similarity = 0.375;
+    r->verdict = BlobValidation::Verdict::Changed;
+  }
+  ChangeEvent bare;  // an event with no sides: empty boxes stay empty
+  const std::string bytes = serializeEvents({e, bare});
+  const std::vector<ChangeEvent> back = deserializeEvents(bytes, "events.bin");
+  ASSERT_EQ(back.size(), 2u);
+  EXPECT_EQ(serializeEvents(back), bytes);
+  EXPECT_EQ(back[0].id, 7);
+  EXPECT_EQ(back[0].type, ChangeType::Replaced);
+  EXPECT_EQ(back[0].status, ChangeStatus::Updated);
+  EXPECT_EQ(back[0].frame, 42u);
+  EXPECT_EQ(back[0].current.plane_id, 5);
+  EXPECT_EQ(back[0].reference.voxels, e.reference.voxels);
+  EXPECT_EQ(back[0].current.shape.deciles, e.current.shape.deciles);
+  EXPECT_TRUE(back[1].reference.empty());
+  EXPECT_TRUE(back[1].reference.bbox.isEmpty());
+  for (const std::string& bad :
+       {bytes.substr(0, bytes.size() - 1), std::string("PSDFMAP") + bytes.substr(7), bytes + "x"}) {
+    try {
+      deserializeEvents(bad, "events.bin");
+      ADD_FAILURE() << "accepted " << bad.size() << " bytes";
+    } catch (const Error& err) {
+      EXPECT_EQ(err.path(), "events.bin");
+      EXPECT_NE(err.message().find("corrupt change events"), std::string::npos) << err.what();
+    }
+  }
+}
+
 TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
   // The current session first sees the table without the box (removed), then the box is back
   // and seen from many more views: the removal is retracted.

@@ -141,11 +141,12 @@ double CPlaneChangeMap::internal_computeObservationLikelihood(const mrpt::obs::C
   return 0.0;
 }
 
-// Serialization (version 0): genericMapParams, the Config as JSON, the current map, the reference
-// map ("" when none) and detect_every. The detector's active changes are not stored: after
-// loading, the next detection reports every change again as new.
+// Serialization (version 1): genericMapParams, the Config as JSON, the current map, the
+// reference map ("" when none), detect_every, then the detector's announced changes
+// (serializeEvents) and its next id, so that a loaded map goes on with the same ids and notifies
+// only what changes. Version 0 (without the changes) still loads: its changes come back as new.
 uint8_t CPlaneChangeMap::serializeGetVersion() const {
-  return 0;
+  return 1;
 }
 
 void CPlaneChangeMap::serializeTo(mrpt::serialization::CArchive& out) const {
@@ -153,19 +154,24 @@ void CPlaneChangeMap::serializeTo(mrpt::serialization::CArchive& out) const {
   out << configToJson(cfg_) << map_.serialize()
       << (detector_ ? detector_->reference().serialize() : std::string());
   out << static_cast<std::int32_t>(detect_every_);
+  out << serializeEvents(changes())
+      << static_cast<std::int32_t>(detector_ ? detector_->nextId() : 1);
 }
 
 void CPlaneChangeMap::serializeFrom(mrpt::serialization::CArchive& in, uint8_t version) {
-  if (version != 0)
+  if (version > 1)
     throw Error("CPlaneChangeMap", "unknown serialization version " + std::to_string(version));
-  std::string cfg_json, map_bytes, ref_bytes;
-  std::int32_t every = 1;
+  std::string cfg_json, map_bytes, ref_bytes, event_bytes;
+  std::int32_t every = 1, next_id = 1;
   in >> genericMapParams;
   in >> cfg_json >> map_bytes >> ref_bytes >> every;
+  if (version >= 1) in >> event_bytes >> next_id;
   cfg_ = parseConfigJson(cfg_json, "CPlaneChangeMap config");
   map_ = Map::deserialize(map_bytes, "CPlaneChangeMap map");
   detector_.reset();
   if (!ref_bytes.empty()) setReference(Map::deserialize(ref_bytes, "CPlaneChangeMap reference"));
+  if (detector_ && version >= 1)
+    detector_->restore(deserializeEvents(event_bytes, "CPlaneChangeMap changes"), next_id);
   detect_every_ = every;
 }
 
