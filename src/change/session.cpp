@@ -264,10 +264,10 @@ void SessionComparison::computeMaps(const Map& current, std::vector<std::pair<bo
   for (std::size_t k = 0; k < needed.size(); ++k) {
     const auto [ref, id] = needed[k];
     if (ref) {
-      reference_maps_[static_cast<std::size_t>(id)] = std::move(computed[k]);
+      PlaneMaps& m = reference_maps_[static_cast<std::size_t>(id)];
+      m = std::move(computed[k]);
+      if (m.points) m.points->chunks = reference_chunks_;
       reference_done_[static_cast<std::size_t>(id)] = true;
-      if (reference_maps_[static_cast<std::size_t>(id)].points)
-        reference_maps_[static_cast<std::size_t>(id)].points->chunks = reference_chunks_;
     } else {
       current_maps_.insert_or_assign(id, CurrentMaps{std::move(computed[k]), cp.size()});
     }
@@ -318,12 +318,11 @@ SessionComparison::Run SessionComparison::run(const Map& current) {
     for (const PlaneMatch& m : forward_matches)
       key.emplace_back(m.target_id, cp[static_cast<std::size_t>(m.target_id)].volume.revision());
     key.emplace_back(-1, cp.size());
-    if (!has_correction_ || key != correction_key_) {
+    if (key != correction_key_) {  // never equal before the first estimate: key is not empty
       correction_ = sessionCorrection(
           reference, current, forward_matches,
           [&](bool ref, int id) -> const PlaneMaps& { return maps(ref, id); }, cfg_);
       correction_key_ = std::move(key);
-      has_correction_ = true;
     }
   }
   set.correction_ms = msSince(tp);
@@ -343,7 +342,7 @@ SessionComparison::Run SessionComparison::run(const Map& current) {
     const auto revisionOf = [&](const PlaneMatch& m) {
       return cp[static_cast<std::size_t>(forward ? m.target_id : m.source_id)].volume.revision();
     };
-    std::vector<const PairCache*> kept(matches.size(), nullptr);
+    std::vector<PairCache*> kept(matches.size(), nullptr);
     std::vector<std::size_t> order;
     for (std::size_t i = 0; i < matches.size(); ++i) {
       const auto it = pairs_.find(keyOf(matches[i]));
@@ -375,7 +374,7 @@ SessionComparison::Run SessionComparison::run(const Map& current) {
       const PlaneMatch& m = matches[i];
       PairCache pc;
       if (kept[i] != nullptr) {
-        pc = *kept[i];
+        pc = std::move(*kept[i]);  // pairs_ is replaced by `next` below
         ++out.pairs_reused;
         if (forward) refined[{m.source_id, m.target_id}] = pc.T_target_source;
       } else {

@@ -61,10 +61,9 @@ class SessionComparison {
   /// (reference→current?, source id, target id) -> candidates
   std::map<std::tuple<bool, int, int>, PairCache> pairs_;
   /// The correction, and the (current plane id, revision) of the forward pairs it was
-  /// estimated from (re-estimated when they change).
+  /// estimated from and the plane count (re-estimated when they change; empty before the first).
   SessionCorrection correction_;
   std::vector<std::pair<int, std::uint64_t>> correction_key_;
-  bool has_correction_ = false;
 };
 
 }  // namespace planesdf::detail
