@@ -79,6 +79,7 @@ const std::vector<Param>& params() {
       {"alpha", &Config::alpha},
       {"delta_blob", &Config::delta_blob},
       {"event_settle_frames", &Config::event_settle_frames},
+      {"event_unscored_settle_frames", &Config::event_unscored_settle_frames},
       {"plane_merge_extent_gap", &Config::plane_merge_extent_gap},
       {"plane_merge_coplanar", &Config::plane_merge_coplanar},
       {"through_band_top", &Config::through_band_top},
@@ -238,6 +239,8 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "roughness_factor must be finite and >= 0");
   require(cfg.event_settle_frames >= 0 && cfg.event_settle_frames <= 100000,
           "event_settle_frames must be in [0, 100000]");
+  require(cfg.event_unscored_settle_frames >= 0 && cfg.event_unscored_settle_frames <= 100000,
+          "event_unscored_settle_frames must be in [0, 100000]");
   // The stages' own checks, here so that their messages name the config file too.
   try {
     validatePlaneConfig(cfg);

@@ -156,6 +156,7 @@ json streamRun(const std::string& preset, unsigned seed, const BenchArgs& args) 
   j["frames"] = cur.frames.size();
   j["update_every"] = args.update_every;
   j["event_settle_frames"] = cfg.event_settle_frames;
+  j["event_unscored_settle_frames"] = cfg.event_unscored_settle_frames;
   j["integrate_ms_median"] = quantile(integrate_ms, 0.5);
   j["update_ms_median"] = quantile(update_ms, 0.5);
   j["update_ms_p95"] = quantile(update_ms, 0.95);

@@ -230,6 +230,11 @@ struct Config {
   /// confidence) or retracted only once the updates over as many frames agree (design.md,
   /// "Stable events"). 0 announces every result at once. ChangeDetector::finish settles all.
   int event_settle_frames = 10;
+  /// As event_settle_frames, for a result the 3D validation could not check on either side (no
+  /// side scored enough key voxels with an observed counterpart: the height test alone decided,
+  /// the other session has not seen the object's surfaces closely enough yet; design.md,
+  /// "Stable events").
+  int event_unscored_settle_frames = 30;
 
   /// Truncation distance in metres.
   double truncation() const { return truncation_voxels * voxel_size; }

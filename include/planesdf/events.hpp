@@ -7,7 +7,8 @@
 /// confidence (Updated), and when later frames show there is no change after all (Retracted).
 ///
 /// Stable events (design.md, "Stable events"): a result is announced only once the updates over
-/// Config::event_settle_frames frames of the current session found it with the same type, and an
+/// Config::event_settle_frames frames of the current session found it with the same type (over
+/// Config::event_unscored_settle_frames when no side of it could be checked in 3D), and an
 /// announced change is updated or retracted only once as many frames agree. finish() settles
 /// everything at the end of a session: the events are then detectChanges' on the same maps.
 ///
@@ -98,8 +99,9 @@ class ChangeDetector {
     bool absent = false;
   };
 
-  UpdateStats run(const Map& current, int settle_frames);
-  void settle(std::vector<ChangeEvent> fresh, std::uint64_t now, int settle_frames,
+  /// `finishing`: every result settles at once (finish()).
+  UpdateStats run(const Map& current, bool finishing);
+  void settle(std::vector<ChangeEvent> fresh, std::uint64_t now, bool finishing,
               UpdateStats& stats);
 
   std::shared_ptr<const Map> reference_;

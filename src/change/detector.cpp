@@ -36,6 +36,15 @@ bool materiallyDifferent(const ChangeEvent& before, const ChangeEvent& after) {
          grew(before.current.columns.size(), after.current.columns.size());
 }
 
+/// True when the 3D validation could check a side of `e` (enough key voxels scored against an
+/// observed counterpart): both sessions saw the object's surfaces, not only its heights.
+bool shapeChecked(const ChangeEvent& e) {
+  const auto checked = [](const ChangeRegion& r) {
+    return !r.empty() && r.verdict != BlobValidation::Verdict::Unknown;
+  };
+  return checked(e.reference) || checked(e.current);
+}
+
 }  // namespace
 
 ChangeDetector::ChangeDetector(const Map& reference, const Config& cfg)
@@ -117,21 +126,21 @@ void ChangeDetector::restore(const std::vector<ChangeEvent>& events, int next_id
 }
 
 UpdateStats ChangeDetector::update(const Map& current) {
-  return run(current, cfg_.event_settle_frames);
+  return run(current, false);
 }
 
 UpdateStats ChangeDetector::finish(const Map& current) {
-  return run(current, 0);
+  return run(current, true);
 }
 
-UpdateStats ChangeDetector::run(const Map& current, int settle_frames) {
+UpdateStats ChangeDetector::run(const Map& current, bool finishing) {
   const auto t0 = std::chrono::steady_clock::now();
   UpdateStats stats;
   requireGeometry(cfg_, current, "current map", "the current map");
   detail::SessionComparison::Run r = comparison_->run(current);
   stats.pairs_checked = r.pairs_checked;
   stats.pairs_reused = r.pairs_reused;
-  settle(std::move(r.set.events), current.frames(), settle_frames, stats);
+  settle(std::move(r.set.events), current.frames(), finishing, stats);
   std::stable_sort(stats.notifications.begin(), stats.notifications.end(),
                    [](const ChangeEvent& a, const ChangeEvent& b) { return a.id < b.id; });
   for (const ChangeEvent& e : stats.notifications)
@@ -141,9 +150,16 @@ UpdateStats ChangeDetector::run(const Map& current, int settle_frames) {
   return stats;
 }
 
-void ChangeDetector::settle(std::vector<ChangeEvent> fresh, std::uint64_t now, int settle_frames,
+void ChangeDetector::settle(std::vector<ChangeEvent> fresh, std::uint64_t now, bool finishing,
                             UpdateStats& stats) {
-  const auto held = [&](const Track& t) { return now - t.since >= std::uint64_t(settle_frames); };
+  // A verdict the 3D validation checked settles sooner than one resting on heights alone; an
+  // absence settles as soon as a checked verdict (design.md, "Stable events").
+  const auto held = [&](const Track& t) {
+    if (finishing) return true;
+    const int frames = t.absent || shapeChecked(t.latest) ? cfg_.event_settle_frames
+                                                          : cfg_.event_unscored_settle_frames;
+    return now - t.since >= static_cast<std::uint64_t>(frames);
+  };
   const auto notify = [&](ChangeEvent e, ChangeStatus status) {
     e.status = status;
     e.frame = now;

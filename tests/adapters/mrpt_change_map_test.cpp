@@ -155,7 +155,7 @@ TEST(MrptChangeMap, CreatedFromAMultiMetricMapIni) {
   referenceMap().save(ref);
   // Results announced as soon as found, so that the detection every 4 scans shows.
   const std::string config = (dir / "planesdf.json").string();
-  std::ofstream(config) << R"({"event_settle_frames": 0})";
+  std::ofstream(config) << R"({"event_settle_frames": 0, "event_unscored_settle_frames": 0})";
   const mrpt::config::CConfigFileMemory ini(
       "[map]\nplaneChangeMap_count=1\n[map_planeChangeMap_00_creationOpts]\nreference_map=" + ref +
       "\nconfig_file=" + config + "\ndetect_every=4\n");

@@ -1201,10 +1201,11 @@ TEST(PlaneMaps, BandPointsAreBucketedOnceOnFirstUse) {
   EXPECT_EQ(bandPoints(computePlaneMaps(floor, {floor}, cfg), floor.plane, points, cfg), nullptr);
 }
 
-/// A detector that announces every result at once (Config::event_settle_frames = 0).
+/// A detector that announces every result at once (no settle frames).
 Config immediate() {
   Config cfg;
   cfg.event_settle_frames = 0;
+  cfg.event_unscored_settle_frames = 0;
   return cfg;
 }
 
@@ -1353,6 +1354,7 @@ TEST(ChangeDetector, RetractsAChangeLaterFramesContradict) {
 TEST(ChangeDetector, AnnouncesOnlyWhatHeldOverTheSettleFrames) {
   Config cfg;
   cfg.event_settle_frames = 5;
+  cfg.event_unscored_settle_frames = 5;
   ChangeDetector det(std::make_shared<const Map>(beforeMap()), cfg);
   std::vector<ChangeEvent> heard;
   det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
@@ -1386,12 +1388,58 @@ TEST(ChangeDetector, AnnouncesOnlyWhatHeldOverTheSettleFrames) {
   EXPECT_EQ(heard.size(), after_finish);
 }
 
+TEST(ChangeDetector, AVerdictOnHeightsAloneWaitsForItsOwnSettleFrames) {
+  Config cfg;
+  cfg.event_settle_frames = 5;
+  cfg.event_unscored_settle_frames = 8;
+  ChangeDetector det(std::make_shared<const Map>(beforeMap()), cfg);
+  std::vector<ChangeEvent> heard;
+  det.onEvent([&](const ChangeEvent& e) { heard.push_back(e); });
+  Map cur{cfg};
+  const auto poses = test::ringPoses({0, 0, kTable}, 0.9, 0.55, 8);
+  const auto seeUpTo = [&](std::uint64_t frames) {
+    while (cur.frames() < frames) {
+      const Pose& T = poses[cur.frames() % poses.size()];
+      cur.integrate(test::renderDepth(afterScene(), Intrinsics{}, T), T);
+    }
+    det.update(cur);
+  };
+  // What the updates find: from frame 4 a move no key voxel of which could be scored; from frame
+  // 8 an addition the 3D validation checked and a removal it could not.
+  const auto checked = [](const ChangeEvent& e) {
+    return e.reference.verdict != BlobValidation::Verdict::Unknown ||
+           e.current.verdict != BlobValidation::Verdict::Unknown;
+  };
+  seeUpTo(4);
+  seeUpTo(8);
+  const ChangeSet at8 = detectChanges(det.reference(), cur, cfg);
+  ASSERT_EQ(at8.events.size(), 3u);
+  EXPECT_EQ(std::count_if(at8.events.begin(), at8.events.end(), checked), 1);
+  seeUpTo(9);  // the move held over 5 frames on heights alone: not yet
+  EXPECT_TRUE(heard.empty());
+  seeUpTo(12);  // over 8 frames: announced
+  ASSERT_EQ(heard.size(), 1u);
+  EXPECT_EQ(heard[0].type, ChangeType::Moved);
+  EXPECT_FALSE(checked(heard[0]));
+  EXPECT_EQ(heard[0].frame, 12u);
+  seeUpTo(13);  // the checked addition held over 5 frames
+  ASSERT_EQ(heard.size(), 2u);
+  EXPECT_EQ(heard[1].type, ChangeType::Added);
+  EXPECT_TRUE(checked(heard[1]));
+  seeUpTo(15);  // the removal on heights alone needs 16
+  EXPECT_EQ(heard.size(), 2u);
+  seeUpTo(16);
+  ASSERT_EQ(heard.size(), 3u);
+  EXPECT_EQ(heard[2].type, ChangeType::Removed);
+}
+
 /// A detector that announces what held over 5 frames, what its callbacks heard, the current
 /// map, and the table without the box and with it.
 struct Settling {
   Config cfg = [] {
     Config c;
     c.event_settle_frames = 5;
+    c.event_unscored_settle_frames = 5;
     return c;
   }();
   ChangeDetector det{beforeMap(), cfg};

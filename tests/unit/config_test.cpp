@@ -31,6 +31,7 @@ TEST(Config, PaperDefaults) {
   EXPECT_DOUBLE_EQ(c.alpha, 2.0);
   EXPECT_DOUBLE_EQ(c.delta_blob, 0.9);
   EXPECT_EQ(c.event_settle_frames, 10);
+  EXPECT_EQ(c.event_unscored_settle_frames, 30);
   EXPECT_DOUBLE_EQ(c.sdf_sigma_voxels, 2.0);
   EXPECT_NEAR(c.truncation(), 0.028, 1e-12);
   EXPECT_NO_THROW(planesdf::validateConfig(c));
@@ -96,6 +97,17 @@ TEST(Config, BadFilesNameFileAndKey) {
   // tests/fuzz/config_fuzz.cpp); it escaped as a foreign exception.
   EXPECT_NE(errorOf(R"({"voxel_size": 1e400})").find("cfg.json: invalid JSON"), std::string::npos);
   EXPECT_NE(errorOf("89296.8E888888").find("number overflow"), std::string::npos);
+}
+
+TEST(Config, SettleFramesAreInRange) {
+  EXPECT_NE(errorOf(R"({"event_settle_frames": -1})").find("event_settle_frames must be in"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"event_unscored_settle_frames": 100001})")
+                .find("event_unscored_settle_frames must be in [0, 100000]"),
+            std::string::npos);
+  EXPECT_EQ(planesdf::parseConfigJson(R"({"event_unscored_settle_frames": 0})", "x")
+                .event_unscored_settle_frames,
+            0);
 }
 
 TEST(Config, MemoryLimitIsInRangeAndDefaultsToHalfThePhysicalMemory) {
