@@ -232,46 +232,57 @@ void addCoveredPoints(std::vector<ChangeEvent>& events, std::vector<Covered> cov
 
 }  // namespace
 
-std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
-                                        std::vector<CandidateChange> added, const Config& cfg) {
-  std::vector<ChangeEvent> events;
-  std::vector<bool> r_used(removed.size(), false), a_used(added.size(), false);
-  mergeDuplicates(removed, r_used);
-  mergeDuplicates(added, a_used);
-  std::vector<Covered> covered = coveredOf(removed, true);
-  for (Covered& c : coveredOf(added, false)) covered.push_back(std::move(c));
-  const auto unknown = [](const CandidateChange& c) {
-    return c.region.verdict == BlobValidation::Verdict::Unknown;
-  };
+namespace {
 
-  // The same object in place, seen from other viewpoints: a candidate without 3D evidence
-  // (Unknown) that lands on an object of the other map with its shape and position
-  // (sameInPlace) is static, unless the other direction found a change with 3D evidence
-  // (Changed) on its footprint.
-  const auto evidenceAgainst = [](const CandidateChange& c,
-                                  const std::vector<CandidateChange>& others) {
-    for (const CandidateChange& o : others)
-      if (o.region.verdict == BlobValidation::Verdict::Changed &&
-          o.region.plane_id == c.target_plane_id &&
-          columnsOverlap(c.target_columns, o.region.columns))
-        return true;
-    return false;
-  };
+/// The candidates of both directions while they are turned into events: which are used, and the
+/// events so far.
+struct Assembly {
+  std::vector<CandidateChange> removed, added;
+  std::vector<bool> r_used, a_used;
+  std::vector<ChangeEvent> events;
+
+  void addMoved(ChangeRegion&& reference, ChangeRegion&& current) {
+    ChangeEvent e;
+    e.type = ChangeType::Moved;
+    e.reference = std::move(reference);
+    e.current = std::move(current);
+    events.push_back(std::move(e));
+  }
+};
+
+bool unknown(const CandidateChange& c) {
+  return c.region.verdict == BlobValidation::Verdict::Unknown;
+}
+
+/// True when the other direction found a change with 3D evidence (Changed) on c's footprint.
+bool evidenceAgainst(const CandidateChange& c, const std::vector<CandidateChange>& others) {
+  for (const CandidateChange& o : others)
+    if (o.region.verdict == BlobValidation::Verdict::Changed &&
+        o.region.plane_id == c.target_plane_id &&
+        columnsOverlap(c.target_columns, o.region.columns))
+      return true;
+  return false;
+}
+
+/// The same object in place, seen from other viewpoints, is static: a candidate without 3D
+/// evidence (Unknown) that lands on an object of the other map with its shape and position
+/// (sameInPlace), unless the other direction found a change with 3D evidence on its footprint;
+/// and a removed and an added candidate with matching shapes standing on the same columns,
+/// neither with 3D evidence (the validation scored no key voxel). Candidates the validation did
+/// score keep their verdict.
+void dropStaticInPlace(Assembly& a) {
+  std::vector<CandidateChange>& removed = a.removed;
+  std::vector<CandidateChange>& added = a.added;
   for (std::size_t i = 0; i < removed.size(); ++i)
     if (unknown(removed[i]) && removed[i].same_in_place && !evidenceAgainst(removed[i], added))
-      r_used[i] = true;
+      a.r_used[i] = true;
   for (std::size_t j = 0; j < added.size(); ++j)
     if (unknown(added[j]) && added[j].same_in_place && !evidenceAgainst(added[j], removed))
-      a_used[j] = true;
-
-  // The same object in place: a removed and an added candidate with matching shapes standing on
-  // the same columns, neither with 3D evidence (both Unknown: the validation scored no key
-  // voxel), are one static object whose height maps differ (seen from other viewpoints), not a
-  // change. Candidates the validation did score keep their verdict.
+      a.a_used[j] = true;
   for (std::size_t i = 0; i < removed.size(); ++i) {
     if (!unknown(removed[i]) || removed[i].supporting) continue;
-    for (std::size_t j = 0; j < added.size() && !r_used[i]; ++j) {
-      if (a_used[j] || !unknown(added[j]) || added[j].supporting ||
+    for (std::size_t j = 0; j < added.size() && !a.r_used[i]; ++j) {
+      if (a.a_used[j] || !unknown(added[j]) || added[j].supporting ||
           added[j].region.plane_id != removed[i].target_plane_id)
         continue;
       if (!columnsOverlap(removed[i].target_columns, added[j].region.columns)) continue;
@@ -282,29 +293,53 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       const ChangeRegion& ar = added[j].region;
       const double size = std::min(rr.bbox.diagonal().norm(), ar.bbox.diagonal().norm());
       if ((rr.centroid - ar.centroid).norm() > kInPlaceShiftFraction * size) continue;
-      r_used[i] = a_used[j] = true;
+      a.r_used[i] = a.a_used[j] = true;
     }
   }
+}
 
-  const auto addMoved = [&](ChangeRegion&& reference, ChangeRegion&& current) {
-    ChangeEvent e;
-    e.type = ChangeType::Moved;
-    e.reference = std::move(reference);
-    e.current = std::move(current);
-    events.push_back(std::move(e));
-  };
+/// Objects a moved object stands on in the other session, each with whether the move covers it
+/// by half or more (else it is only taken by a move it meets: the lower part of a taller object,
+/// under the other one).
+using Landed = std::vector<std::pair<ChangeRegion, bool>>;
+
+void landedOn(CandidateChange& c, Landed& into) {
+  if (!c.target_object.empty())
+    into.emplace_back(std::move(c.target_object), c.target_object_overlap >= kReplacedMinOverlap);
+}
+
+/// Of `regions`, those no Moved event's `side` overlaps and that a move covers by half; the
+/// others join the event they overlap.
+std::vector<ChangeRegion> takeIntoMoves(Assembly& a, Landed& regions,
+                                        ChangeRegion ChangeEvent::*side) {
+  std::vector<ChangeRegion> left;
+  for (auto& [x, covered] : regions) {
+    const auto e = std::find_if(a.events.begin(), a.events.end(), [&](const ChangeEvent& o) {
+      const ChangeRegion& r = o.*side;
+      return o.type == ChangeType::Moved && r.plane_id == x.plane_id &&
+             columnsOverlap(r.columns, x.columns);
+    });
+    if (e != a.events.end()) {
+      uniteRegion((*e).*side, x);
+    } else if (covered) {
+      left.push_back(std::move(x));
+    }
+  }
+  return left;
+}
+
+/// Moved: greedy over the pairs with matching shapes, best first (supporting slivers are no
+/// object's shape). Then swaps (design.md, "Swaps"): each moved object lands on the other one
+/// whole, in both places. A move overlapping such a region takes it (the other object's blobs
+/// were only the ring the larger one leaves uncovered); regions no move overlaps (the other
+/// object's blobs all covered) pair by shape as the other object's move.
+void pairMoves(Assembly& a) {
+  std::vector<CandidateChange>& removed = a.removed;
+  std::vector<CandidateChange>& added = a.added;
   // The objects a moved object stands on in the other session: in a swap, the other object
   // where this one went (reference side) and where it came from (current side).
-  // Each with whether the move covers it by half or more (else it is only taken by a move it
-  // meets: the lower part of a taller object, under the other one).
-  std::vector<std::pair<ChangeRegion, bool>> under_reference, under_current;
-  const auto landedOn = [](CandidateChange& c, std::vector<std::pair<ChangeRegion, bool>>& into) {
-    if (!c.target_object.empty())
-      into.emplace_back(std::move(c.target_object), c.target_object_overlap >= kReplacedMinOverlap);
-  };
-  // Moved: greedy over the pairs with matching shapes, best first (supporting slivers are no
-  // object's shape).
-  std::vector<bool> r_skip = r_used, a_skip = a_used;
+  Landed under_reference, under_current;
+  std::vector<bool> r_skip = a.r_used, a_skip = a.a_used;
   for (std::size_t i = 0; i < removed.size(); ++i) r_skip[i] = r_skip[i] || removed[i].supporting;
   for (std::size_t j = 0; j < added.size(); ++j) a_skip[j] = a_skip[j] || added[j].supporting;
   const auto movedPairs = pairByShape(
@@ -313,34 +348,14 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_skip,
       a_skip);
   for (const auto& [i, j] : movedPairs) {
-    r_used[i] = a_used[j] = true;
+    a.r_used[i] = a.a_used[j] = true;
     landedOn(added[j], under_reference);
     landedOn(removed[i], under_current);
-    addMoved(std::move(removed[i].region), std::move(added[j].region));
+    a.addMoved(std::move(removed[i].region), std::move(added[j].region));
   }
-  // A swap (design.md, "Swaps"): each moved object lands on the other one whole, in both
-  // places. A move overlapping such a region takes it (the other object's blobs were only the
-  // ring the larger one leaves uncovered); regions no move overlaps (the other object's blobs
-  // all covered) pair by shape as the other object's move.
-  const auto takeInto = [&](std::vector<std::pair<ChangeRegion, bool>>& regions,
-                            ChangeRegion ChangeEvent::*side) {
-    std::vector<ChangeRegion> left;
-    for (auto& [x, covered] : regions) {
-      const auto e = std::find_if(events.begin(), events.end(), [&](const ChangeEvent& o) {
-        const ChangeRegion& r = o.*side;
-        return o.type == ChangeType::Moved && r.plane_id == x.plane_id &&
-               columnsOverlap(r.columns, x.columns);
-      });
-      if (e != events.end()) {
-        uniteRegion((*e).*side, x);
-      } else if (covered) {
-        left.push_back(std::move(x));
-      }
-    }
-    return left;
-  };
-  std::vector<ChangeRegion> left_reference = takeInto(under_reference, &ChangeEvent::reference);
-  std::vector<ChangeRegion> left_current = takeInto(under_current, &ChangeEvent::current);
+  std::vector<ChangeRegion> left_reference =
+      takeIntoMoves(a, under_reference, &ChangeEvent::reference);
+  std::vector<ChangeRegion> left_current = takeIntoMoves(a, under_current, &ChangeEvent::current);
   std::vector<bool> ref_taken(left_reference.size(), false), cur_taken(left_current.size(), false);
   const auto swapPairs = pairByShape(
       left_reference.size(), left_current.size(),
@@ -348,86 +363,92 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
       [&](std::size_t j) -> const ShapeSignature& { return left_current[j].shape; }, ref_taken,
       cur_taken);
   for (const auto& [i, j] : swapPairs)
-    addMoved(std::move(left_reference[i]), std::move(left_current[j]));
+    a.addMoved(std::move(left_reference[i]), std::move(left_current[j]));
+}
 
-  // Replaced: a removed object with something else standing on its footprint now.
-  for (std::size_t i = 0; i < removed.size(); ++i) {
-    if (r_used[i]) continue;
-    CandidateChange& r = removed[i];
-    std::vector<std::size_t> on_footprint;
-    bool any_strong = !r.supporting;
-    for (std::size_t j = 0; j < added.size(); ++j) {
-      if (a_used[j] || added[j].region.plane_id != r.target_plane_id) continue;
-      if (!columnsOverlap(r.target_columns, added[j].region.columns)) continue;
-      on_footprint.push_back(j);
-      any_strong = any_strong || !added[j].supporting;
-    }
-    if (!any_strong) continue;  // supporting slivers only: no event (design.md)
-    ChangeEvent e;
-    for (const std::size_t j : on_footprint) {
-      a_used[j] = true;
-      appendRegion(e.current, added[j].region);
-      // The old objects it landed on, whole: where the new object is taller, its blob holds only
-      // the part above them (design.md, "Changed objects whole").
-      if (targetsJoin(added[j], r.region)) uniteRegion(r.region, added[j].target_object);
-    }
-    // Likewise the new objects the old one landed on, whole.
-    if (!e.current.empty() && targetsJoin(r, e.current)) uniteRegion(e.current, r.target_object);
-    if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
-        !r.target_object.empty()) {
-      // Another sliver of the same old object, replaced by the same new one: one event.
-      const auto same = std::find_if(events.begin(), events.end(), [&](const ChangeEvent& o) {
-        return o.type == ChangeType::Replaced && o.current.plane_id == r.target_object.plane_id &&
-               columnsOverlap(o.current.columns, r.target_object.columns);
-      });
-      if (same != events.end()) {
-        r_used[i] = true;
-        appendRegion(same->reference, r.region);
-        continue;
-      }
-      e.current = std::move(r.target_object);
-      // An added candidate on those objects (the part of a wider new object around the old
-      // footprint) is this replacement, not another event (design.md, "One object, one event").
-      absorbCandidates(added, a_used, r.target_plane_id, e.current);
-    }
-    if (e.current.empty()) continue;
-    r_used[i] = true;
-    e.type = r.small_move ? ChangeType::Moved : ChangeType::Replaced;
-    e.reference = std::move(r.region);
-    events.push_back(std::move(e));
+/// The replacement of removed candidate i: the added candidates on its footprint, or the target
+/// objects it landed on; nothing when only supporting slivers are there.
+void replace(Assembly& a, std::size_t i) {
+  CandidateChange& r = a.removed[i];
+  std::vector<std::size_t> on_footprint;
+  bool any_strong = !r.supporting;
+  for (std::size_t j = 0; j < a.added.size(); ++j) {
+    if (a.a_used[j] || a.added[j].region.plane_id != r.target_plane_id) continue;
+    if (!columnsOverlap(r.target_columns, a.added[j].region.columns)) continue;
+    on_footprint.push_back(j);
+    any_strong = any_strong || !a.added[j].supporting;
   }
+  if (!any_strong) return;  // supporting slivers only: no event (design.md)
+  ChangeEvent e;
+  for (const std::size_t j : on_footprint) {
+    a.a_used[j] = true;
+    appendRegion(e.current, a.added[j].region);
+    // The old objects it landed on, whole: where the new object is taller, its blob holds only
+    // the part above them (design.md, "Changed objects whole").
+    if (targetsJoin(a.added[j], r.region)) uniteRegion(r.region, a.added[j].target_object);
+  }
+  // Likewise the new objects the old one landed on, whole.
+  if (!e.current.empty() && targetsJoin(r, e.current)) uniteRegion(e.current, r.target_object);
+  if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
+      !r.target_object.empty()) {
+    // Another sliver of the same old object, replaced by the same new one: one event.
+    const auto same = std::find_if(a.events.begin(), a.events.end(), [&](const ChangeEvent& o) {
+      return o.type == ChangeType::Replaced && o.current.plane_id == r.target_object.plane_id &&
+             columnsOverlap(o.current.columns, r.target_object.columns);
+    });
+    if (same != a.events.end()) {
+      a.r_used[i] = true;
+      appendRegion(same->reference, r.region);
+      return;
+    }
+    e.current = std::move(r.target_object);
+    // An added candidate on those objects (the part of a wider new object around the old
+    // footprint) is this replacement, not another event (design.md, "One object, one event").
+    absorbCandidates(a.added, a.a_used, r.target_plane_id, e.current);
+  }
+  if (e.current.empty()) return;
+  a.r_used[i] = true;
+  e.type = r.small_move ? ChangeType::Moved : ChangeType::Replaced;
+  e.reference = std::move(r.region);
+  a.events.push_back(std::move(e));
+}
 
-  // A small move found only from the current side: the object it was in the reference, with
-  // any removed candidate on it.
-  for (std::size_t j = 0; j < added.size(); ++j) {
-    CandidateChange& a = added[j];
-    if (a_used[j] || !a.small_move || a.target_object.empty()) continue;
-    a_used[j] = true;
+/// A small move found only from the current side: the object it was in the reference, with any
+/// removed candidate on it.
+void currentSideSmallMoves(Assembly& a) {
+  for (std::size_t j = 0; j < a.added.size(); ++j) {
+    CandidateChange& c = a.added[j];
+    if (a.a_used[j] || !c.small_move || c.target_object.empty()) continue;
+    a.a_used[j] = true;
     ChangeEvent e;
     e.type = ChangeType::Moved;
-    e.reference = std::move(a.target_object);
-    absorbCandidates(removed, r_used, a.target_plane_id, e.reference);
-    e.current = std::move(a.region);
-    events.push_back(std::move(e));
+    e.reference = std::move(c.target_object);
+    absorbCandidates(a.removed, a.r_used, c.target_plane_id, e.reference);
+    e.current = std::move(c.region);
+    a.events.push_back(std::move(e));
   }
+}
 
-  for (std::size_t i = 0; i < removed.size(); ++i) {
-    if (r_used[i] || removed[i].supporting) continue;
+/// The candidates left: removed and added objects (supporting slivers are no event).
+void addRemovedAndAdded(Assembly& a) {
+  for (std::size_t i = 0; i < a.removed.size(); ++i) {
+    if (a.r_used[i] || a.removed[i].supporting) continue;
     ChangeEvent e;
     e.type = ChangeType::Removed;
-    e.reference = std::move(removed[i].region);
-    events.push_back(std::move(e));
+    e.reference = std::move(a.removed[i].region);
+    a.events.push_back(std::move(e));
   }
-  for (std::size_t j = 0; j < added.size(); ++j) {
-    if (a_used[j] || added[j].supporting) continue;
+  for (std::size_t j = 0; j < a.added.size(); ++j) {
+    if (a.a_used[j] || a.added[j].supporting) continue;
     ChangeEvent e;
     e.type = ChangeType::Added;
-    e.current = std::move(added[j].region);
-    events.push_back(std::move(e));
+    e.current = std::move(a.added[j].region);
+    a.events.push_back(std::move(e));
   }
+}
 
-  addCoveredPoints(events, std::move(covered));
-
+/// Events in a stable order (type, plane, centroid), numbered from 1, with their confidence.
+void numberEvents(std::vector<ChangeEvent>& events, const Config& cfg) {
   std::stable_sort(events.begin(), events.end(), [](const ChangeEvent& a, const ChangeEvent& b) {
     const auto ka = std::make_tuple(typeOrder(a.type), a.planeId(), a.primary().centroid.x(),
                                     a.primary().centroid.y(), a.primary().centroid.z());
@@ -440,7 +461,31 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
     e.id = static_cast<int>(k) + 1;
     e.confidence = std::max(confidenceOf(e.reference, cfg), confidenceOf(e.current, cfg));
   }
-  return events;
+}
+
+}  // namespace
+
+std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
+                                        std::vector<CandidateChange> added, const Config& cfg) {
+  Assembly a;
+  a.r_used.assign(removed.size(), false);
+  a.a_used.assign(added.size(), false);
+  a.removed = std::move(removed);
+  a.added = std::move(added);
+  mergeDuplicates(a.removed, a.r_used);
+  mergeDuplicates(a.added, a.a_used);
+  std::vector<Covered> covered = coveredOf(a.removed, true);
+  for (Covered& c : coveredOf(a.added, false)) covered.push_back(std::move(c));
+  dropStaticInPlace(a);
+  pairMoves(a);
+  // Replaced: a removed object with something else standing on its footprint now.
+  for (std::size_t i = 0; i < a.removed.size(); ++i)
+    if (!a.r_used[i]) replace(a, i);
+  currentSideSmallMoves(a);
+  addRemovedAndAdded(a);
+  addCoveredPoints(a.events, std::move(covered));
+  numberEvents(a.events, cfg);
+  return std::move(a.events);
 }
 
 }  // namespace planesdf
