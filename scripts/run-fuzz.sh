@@ -15,7 +15,7 @@ jobs=$(nproc 2>/dev/null || echo 2)
 seconds=${1:-30}
 [ $# -gt 0 ] && shift
 targets=("$@")
-[ ${#targets[@]} -eq 0 ] && targets=(ply pcd lzf tum depth_png psdf config scene events)
+[ ${#targets[@]} -eq 0 ] && targets=(ply pcd lzf tum depth_png psdf config scene events changes)
 build=build-fuzz
 cc=${CC_FUZZ:-clang-14}
 cxx=${CXX_FUZZ:-clang++-14}

@@ -387,6 +387,17 @@ InPlaceMatch sameInPlace(const HeightMap& src, const std::vector<Eigen::Vector2i
 /// num_voxels, num_points, key_voxels, scored, mean_similarity, verdict) for the sides present.
 std::string changesToJson(const std::vector<ChangeEvent>& events, int indent = 2);
 
+/// The events of a changes.json text (`name` names it in errors): id, type, status, confidence
+/// and, per side, plane id, box, centroid and 3D evidence. Columns, voxels, points and shape
+/// signatures are not in changes.json: the regions have none. Throws planesdf::Error(name, ...)
+/// naming the event and field on a text changesToJson could not have written.
+std::vector<ChangeEvent> changesFromJson(const std::string& text, const std::string& name);
+
+/// Reads back what writeChangeOutputs wrote into `dir`: changesFromJson of changes.json, with
+/// each side's points from removed_points.ply / added_points.ply (by change_id). Throws
+/// planesdf::Error naming the file when one is missing or does not match changes.json.
+std::vector<ChangeEvent> readChangeOutputs(const std::string& dir);
+
 /// The events whole (every field, both sides' columns, voxels and points) in a binary form, for
 /// a host that saves a ChangeDetector's state (ChangeDetector::restore).
 std::string serializeEvents(const std::vector<ChangeEvent>& events);

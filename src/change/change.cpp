@@ -25,36 +25,6 @@
 
 namespace planesdf {
 
-const char* toString(ChangeType t) {
-  switch (t) {
-    case ChangeType::Added:
-      return "added";
-    case ChangeType::Removed:
-      return "removed";
-    case ChangeType::Moved:
-      return "moved";
-    case ChangeType::Replaced:
-      return "replaced";
-  }
-  return "unknown";
-}
-
-const char* toString(ChangeStatus s) {
-  switch (s) {
-    case ChangeStatus::New:
-      return "new";
-    case ChangeStatus::Updated:
-      return "updated";
-    case ChangeStatus::Retracted:
-      return "retracted";
-  }
-  return "unknown";
-}
-
-const ChangeRegion& ChangeEvent::primary() const {
-  return type == ChangeType::Removed || current.empty() ? reference : current;
-}
-
 namespace {
 
 using detail::BandFilter;

@@ -1,8 +1,10 @@
-// detect outputs: changes.json, removed/added point PLYs and per-stage pictures (DESIGN §3).
+// detect outputs: changes.json, removed/added point PLYs and per-stage pictures (DESIGN §3),
+// written all or nothing and read back.
 
-#include <nlohmann/json.hpp>
-
+#include <cmath>
 #include <filesystem>
+#include <limits>
+#include <map>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -16,75 +18,33 @@
 namespace planesdf {
 namespace {
 
-nlohmann::json vec(const Eigen::Vector3d& v) {
-  return nlohmann::json::array({v.x(), v.y(), v.z()});
-}
+constexpr long long kMaxCount = std::numeric_limits<int>::max();
 
-Eigen::Vector3d boxMin(const Eigen::AlignedBox3d& b) {
-  return b.isEmpty() ? Eigen::Vector3d::Zero() : b.min();
-}
-Eigen::Vector3d boxMax(const Eigen::AlignedBox3d& b) {
-  return b.isEmpty() ? Eigen::Vector3d::Zero() : b.max();
-}
-
-nlohmann::json sideJson(const ChangeRegion& r) {
-  nlohmann::json j;
-  j["plane_id"] = r.plane_id;
-  j["bbox_min"] = vec(boxMin(r.bbox));
-  j["bbox_max"] = vec(boxMax(r.bbox));
-  j["centroid"] = vec(r.centroid);
-  j["num_voxels"] = r.voxels.size();
-  j["num_points"] = r.points.size();
-  j["key_voxels"] = r.key_voxels;
-  j["scored"] = r.scored;
-  j["mean_similarity"] = r.mean_similarity;
-  j["verdict"] = toString(r.verdict);
-  return j;
+/// Adds the points of `path` (a detect PLY with int change_id) to side `side` of the events.
+void addPoints(const std::string& path, std::vector<ChangeEvent>& events,
+               ChangeRegion ChangeEvent::*side) {
+  const PointCloud cloud = io::readPly(path);
+  const ScalarField* ids = nullptr;
+  for (const ScalarField& s : cloud.fields)
+    if (s.name == "change_id") ids = &s;
+  if (ids == nullptr || ids->values.size() != cloud.points.size())
+    throw Error(path, "has no change_id vertex property");
+  std::map<int, ChangeRegion*> by_id;
+  for (ChangeEvent& e : events) by_id[e.id] = &(e.*side);
+  for (std::size_t i = 0; i < cloud.points.size(); ++i) {
+    const double id = ids->values[i];
+    const bool whole = std::isfinite(id) && id == std::floor(id) && id >= 1.0 && id <= kMaxCount;
+    const auto it = whole ? by_id.find(static_cast<int>(id)) : by_id.end();
+    if (it == by_id.end() || it->second->empty())
+      throw Error(path, "point " + std::to_string(i) + " has change_id " + std::to_string(id) +
+                            ", which no event of changes.json has on this side");
+    it->second->points.push_back(cloud.points[i]);
+  }
 }
 
 std::string side(bool reference) {
   return reference ? "ref" : "cur";
 }
-
-}  // namespace
-
-std::array<std::uint8_t, 3> changeColor(ChangeType t) {
-  switch (t) {
-    case ChangeType::Added:
-      return {230, 40, 40};
-    case ChangeType::Removed:
-      return {40, 90, 230};
-    case ChangeType::Moved:
-      return {240, 220, 30};
-    case ChangeType::Replaced:
-      return {220, 40, 220};
-  }
-  return {255, 255, 255};
-}
-
-std::string changesToJson(const std::vector<ChangeEvent>& events, int indent) {
-  nlohmann::json arr = nlohmann::json::array();
-  for (const ChangeEvent& e : events) {
-    const ChangeRegion& p = e.primary();
-    nlohmann::json j;
-    j["id"] = e.id;
-    j["type"] = toString(e.type);
-    j["status"] = toString(e.status);
-    j["plane_id"] = p.plane_id;
-    j["bbox_min"] = vec(boxMin(p.bbox));
-    j["bbox_max"] = vec(boxMax(p.bbox));
-    j["centroid"] = vec(p.centroid);
-    j["num_voxels"] = e.numVoxels();
-    j["num_points"] = e.numPoints();
-    j["confidence"] = e.confidence;
-    if (!e.reference.empty()) j["reference"] = sideJson(e.reference);
-    if (!e.current.empty()) j["current"] = sideJson(e.current);
-    arr.push_back(std::move(j));
-  }
-  return arr.dump(indent);
-}
-
-namespace {
 
 const char* const kOutputFiles[] = {"changes.json", "removed_points.ply", "added_points.ply"};
 
@@ -175,6 +135,14 @@ void writeChangeFiles(const std::string& dir, const ChangeSet& set) {
 void writeChangeOutputs(const std::string& dir, const ChangeSet& set) {
   io::replaceFolderAtomic(
       dir, [&](const std::string& fresh) { writeChangeFiles(fresh, set); }, holdsOnlyChangeOutputs);
+}
+
+std::vector<ChangeEvent> readChangeOutputs(const std::string& dir) {
+  const std::string path = dir + "/changes.json";
+  std::vector<ChangeEvent> events = changesFromJson(io::readFile(path), path);
+  addPoints(dir + "/removed_points.ply", events, &ChangeEvent::reference);
+  addPoints(dir + "/added_points.ply", events, &ChangeEvent::current);
+  return events;
 }
 
 }  // namespace planesdf

@@ -219,6 +219,88 @@ TEST(DetectChanges, OutputsReplaceTheFolderWholeAndRefuseForeignFiles) {
   EXPECT_FALSE(std::filesystem::exists(out + "/planes"));
 }
 
+TEST(DetectChanges, OutputsReadBackIntoTheirEvents) {
+  const ChangeSet s = detectChanges(beforeMap(), afterMap(), Config{});
+  ASSERT_GE(s.events.size(), 2u);
+  test::TempDir dir;
+  writeChangeOutputs(dir.path(), s);
+  const std::vector<ChangeEvent> back = readChangeOutputs(dir.path());
+  ASSERT_EQ(back.size(), s.events.size());
+  for (std::size_t k = 0; k < back.size(); ++k) {
+    const ChangeEvent& a = s.events[k];
+    const ChangeEvent& b = back[k];
+    EXPECT_EQ(b.id, a.id);
+    EXPECT_EQ(b.type, a.type);
+    EXPECT_EQ(b.status, a.status);
+    EXPECT_DOUBLE_EQ(b.confidence, a.confidence);
+    for (const auto side : {&ChangeEvent::reference, &ChangeEvent::current}) {
+      const ChangeRegion& ra = a.*side;
+      const ChangeRegion& rb = b.*side;
+      ASSERT_EQ(rb.plane_id, ra.plane_id);
+      EXPECT_EQ(rb.points, ra.points);  // PLY floats, written and read as float32
+      EXPECT_TRUE(rb.centroid.isApprox(ra.centroid, 1e-12) || ra.centroid.isZero());
+      EXPECT_EQ(rb.bbox.isEmpty(), ra.bbox.isEmpty());
+      if (!ra.bbox.isEmpty()) {
+        EXPECT_TRUE(rb.bbox.min().isApprox(ra.bbox.min(), 1e-12));
+      }
+      EXPECT_EQ(rb.key_voxels, ra.key_voxels);
+      EXPECT_EQ(rb.scored, ra.scored);
+      EXPECT_EQ(rb.verdict, ra.verdict);
+      EXPECT_TRUE(rb.columns.empty());  // not in the files
+    }
+  }
+  // Points of a change changes.json does not hold: an error naming the PLY.
+  test::writeBytes(dir.path() + "/changes.json", "[]");
+  try {
+    readChangeOutputs(dir.path());
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.path(), dir.path() + "/removed_points.ply");
+  }
+}
+
+TEST(DetectChanges, ChangesJsonItCouldNotHaveWrittenIsAnErrorNamingTheEventAndField) {
+  const auto errorOf = [](const std::string& text) {
+    try {
+      changesFromJson(text, "x/changes.json");
+    } catch (const Error& e) {
+      EXPECT_EQ(e.path(), "x/changes.json");
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  const std::string side =
+      R"({"plane_id": 2, "bbox_min": [0, 0, 0], "bbox_max": [1, 1, 1], "centroid": [0.5, 0.5, )"
+      R"(0.5], "num_voxels": 3, "num_points": 4, "key_voxels": 2, "scored": 1, )"
+      R"("mean_similarity": 0.4, "verdict": "changed"})";
+  const auto event = [&](const std::string& fields, const std::string& sides) {
+    return "[{" + fields + sides + "}]";
+  };
+  const std::string ok_fields = R"("id": 1, "type": "removed", "status": "new", "confidence": 0.8)";
+  const std::vector<ChangeEvent> ok =
+      changesFromJson(event(ok_fields, R"(, "reference": )" + side), "x");
+  ASSERT_EQ(ok.size(), 1u);
+  EXPECT_EQ(ok[0].type, ChangeType::Removed);
+  EXPECT_EQ(ok[0].reference.plane_id, 2);
+  EXPECT_EQ(ok[0].reference.verdict, BlobValidation::Verdict::Changed);
+  EXPECT_NE(errorOf("{}").find("is not a JSON array"), std::string::npos);
+  EXPECT_NE(errorOf("[1]").find("event 1: is not an object"), std::string::npos);
+  EXPECT_NE(errorOf(event(R"("id": 1, "type": "gone", "status": "new", "confidence": 0.8)",
+                          R"(, "reference": )" + side))
+                .find("event 1: type must be one of added, removed, moved, replaced"),
+            std::string::npos);
+  EXPECT_NE(errorOf(event(ok_fields, "")).find("a removed change needs only a reference side"),
+            std::string::npos);
+  std::string twice = event(ok_fields, R"(, "reference": )" + side);
+  twice = "[" + twice.substr(1, twice.size() - 2) + ", " + twice.substr(1, twice.size() - 2) + "]";
+  EXPECT_NE(errorOf(twice).find("event 2: id 1 appears twice"), std::string::npos);
+  std::string bad_box = side;
+  bad_box.replace(bad_box.find("[1, 1, 1]"), 9, "[-1, 1, 1]");
+  EXPECT_NE(errorOf(event(ok_fields, R"(, "reference": )" + bad_box))
+                .find("event 1: reference bbox_min lies above bbox_max"),
+            std::string::npos);
+}
+
 TEST(DetectChanges, DifferentVoxelSizesAreAnError) {
   Config c;
   c.voxel_size = 0.01;
