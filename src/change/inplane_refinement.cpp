@@ -638,30 +638,27 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
   return fine;
 }
 
-/// Model selection: keep the initial T unless the evidence is clear. A best candidate on the
-/// border of the window (one more fine step would leave it) is no optimum of the drift: the cost
-/// may still fall outward, which is what dragging the map onto a moved object's new place does.
-/// Otherwise it must remove kMinGainCells cells, and kMinGainFraction of the initial mismatches
-/// or kMinGainSigmas of their count or of the paired test (design.md, "In-plane refinement",
-/// "The session's drift passes a paired test"). Records the flips in `out`.
-bool clearGain(const SampleSet& set, const HeightMap& tgt, const Cand& fine, const Score& best,
-               const Score& initial, const Config& cfg, const InPlaneSearch& search, double step,
-               double ystep, InPlaneRefinement& out) {
+/// A best candidate on the border of the window (one more step would leave it) is no optimum of
+/// the drift: the cost may still fall outward, which is what dragging the map onto a moved
+/// object's new place does.
+bool onWindowBorder(const Cand& c, const InPlaneSearch& search, double step, double ystep) {
   const auto onBorder = [](double x, double st, double limit) {
     return std::abs(x) + st > limit + 1e-9;
   };
-  if (onBorder(fine.du, step, search.max_shift) || onBorder(fine.dv, step, search.max_shift) ||
-      onBorder(fine.yaw_deg, ystep, search.max_yaw_deg))
-    return false;
-  const Flips f = flips(set.samples, tgt, set.pivot, fine.yaw_deg * kPi / 180.0,
-                        Eigen::Vector2d(fine.du, fine.dv), cfg.delta_h);
-  out.fixed = f.fixed;
-  out.broken = f.broken;
-  const int gain = initial.mismatches - best.mismatches;
-  const bool paired = search.session_drift && pairedSigmas(f) >= kMinGainSigmas;
+  return onBorder(c.du, step, search.max_shift) || onBorder(c.dv, step, search.max_shift) ||
+         onBorder(c.yaw_deg, ystep, search.max_yaw_deg);
+}
+
+/// Model selection: keep the initial T unless the evidence is clear. The best candidate must
+/// remove kMinGainCells cells, and kMinGainFraction of the initial mismatches or kMinGainSigmas
+/// of their count or, for the session's drift, of the paired test on the cells it flips
+/// (design.md, "In-plane refinement", "The session's drift passes a paired test").
+bool clearGain(const Flips& f, int initial_mismatches, int best_mismatches, bool session_drift) {
+  const int gain = initial_mismatches - best_mismatches;
+  const bool paired = session_drift && pairedSigmas(f) >= kMinGainSigmas;
   return gain >= kMinGainCells &&
-         (gain >= kMinGainFraction * initial.mismatches ||
-          gain >= kMinGainSigmas * std::sqrt(initial.mismatches) || paired);
+         (gain >= kMinGainFraction * initial_mismatches ||
+          gain >= kMinGainSigmas * std::sqrt(initial_mismatches) || paired);
 }
 
 /// Applies candidate `c` with score `best` to `out` and to T: Δ = Translate(pivot + shift) *
@@ -732,8 +729,12 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   const double step = search.shift_step > 0.0 ? search.shift_step : tgt.cell_size;
   const double ystep = search.yaw_step_deg > 0.0 ? search.yaw_step_deg : 0.5;
   const auto [fine, best] = searchWindow(set, groups, tgt, cfg, search, step, ystep);
-  if (!better(best, initial)) return out;
-  if (!clearGain(set, tgt, fine, best, initial, cfg, search, step, ystep, out)) return out;
+  if (!better(best, initial) || onWindowBorder(fine, search, step, ystep)) return out;
+  const Flips f = flips(set.samples, tgt, set.pivot, fine.yaw_deg * kPi / 180.0,
+                        Eigen::Vector2d(fine.du, fine.dv), cfg.delta_h);
+  out.fixed = f.fixed;
+  out.broken = f.broken;
+  if (!clearGain(f, initial.mismatches, best.mismatches, search.session_drift)) return out;
   applyCandidate(fine, best, set.pivot, out, T_target_source_local);
   return out;
 }
