@@ -3,13 +3,14 @@
 
 #include <nlohmann/json.hpp>
 
-#include <cmath>
 #include <limits>
-#include <map>
+#include <set>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "../json_depth.hpp"
+#include "../json_reader.hpp"
 #include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 
@@ -44,16 +45,17 @@ json sideJson(const ChangeRegion& r) {
   return j;
 }
 
-/// Reads the fields of one JSON object, naming the event and field in its errors.
+/// One object of changes.json: its values through JsonReader, with errors naming the event, the
+/// side and the field ("event 2: reference scored: must be in [0, 12], got 13").
 class Fields {
  public:
-  Fields(const json& j, std::string name, std::string where)
-      : j_(j), name_(std::move(name)), where_(std::move(where)) {
+  Fields(const detail::JsonReader& r, const json& j, std::string event, const std::string& side)
+      : r_(r), j_(j), event_(std::move(event)), prefix_(side.empty() ? "" : side + " ") {
     if (!j_.is_object()) fail("", "is not an object");
   }
 
   [[noreturn]] void fail(const std::string& key, const std::string& what) const {
-    throw Error(name_, where_ + (key.empty() ? "" : " " + key) + " " + what);
+    r_.fail(event_, prefix_ + (key.empty() ? "" : key + " ") + what);
   }
 
   bool has(const char* key) const { return j_.contains(key); }
@@ -64,48 +66,37 @@ class Fields {
   }
 
   long long integer(const char* key, long long lo, long long hi) const {
-    const json& v = at(key);
-    if (!v.is_number_integer() || v.get<long long>() < lo || v.get<long long>() > hi)
-      fail(key, "must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
-    return v.get<long long>();
+    return r_.integer(at(key), element(key), lo, hi);
   }
 
   double number(const char* key, double lo, double hi) const {
-    const json& v = at(key);
-    if (!v.is_number() || !(v.get<double>() >= lo && v.get<double>() <= hi))
-      fail(key, "must be a number in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
-    return v.get<double>();
+    const double x = r_.number(at(key), element(key));
+    if (!(x >= lo && x <= hi))
+      fail(key, "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    return x;
   }
 
-  Eigen::Vector3d vec3(const char* key) const {
-    const json& v = at(key);
-    if (!v.is_array() || v.size() != 3) fail(key, "must be an array of 3 numbers");
-    Eigen::Vector3d out;
-    for (int k = 0; k < 3; ++k) {
-      const json& c = v[static_cast<std::size_t>(k)];
-      if (!c.is_number() || !std::isfinite(c.get<double>()))
-        fail(key, "must be an array of 3 finite numbers");
-      out[k] = c.get<double>();
-    }
-    return out;
-  }
+  Eigen::Vector3d vec3(const char* key) const { return r_.vector<3>(at(key), element(key)); }
 
-  /// The value of string `key` among `names` (index), or a failure listing them.
+  /// The one of `values` whose name (toString) string `key` holds, or a failure listing them.
   template <typename T, std::size_t N>
   T oneOf(const char* key, const T (&values)[N]) const {
-    const json& v = at(key);
+    const std::string v = r_.string(at(key), element(key));
     std::string allowed;
     for (const T& t : values) {
-      if (v.is_string() && v.get<std::string>() == toString(t)) return t;
+      if (v == toString(t)) return t;
       allowed += std::string(allowed.empty() ? "" : ", ") + toString(t);
     }
     fail(key, "must be one of " + allowed);
   }
 
  private:
+  std::string element(const char* key) const { return event_ + ": " + prefix_ + key; }
+
+  const detail::JsonReader& r_;
   const json& j_;
-  std::string name_;
-  std::string where_;
+  std::string event_;
+  std::string prefix_;
 };
 
 constexpr long long kMaxCount = std::numeric_limits<int>::max();
@@ -130,18 +121,17 @@ ChangeRegion regionOf(const Fields& f) {
   return r;
 }
 
-ChangeEvent eventOf(const json& j, const std::string& name, std::size_t index) {
-  const std::string where = "event " + std::to_string(index + 1) + ":";
-  const Fields f(j, name, where);
+ChangeEvent eventOf(const detail::JsonReader& r, const json& j, std::size_t index) {
+  const std::string event = "event " + std::to_string(index + 1);
+  const Fields f(r, j, event, "");
   ChangeEvent e;
   e.id = static_cast<int>(f.integer("id", 1, kMaxCount));
   e.type = f.oneOf(
       "type", {ChangeType::Added, ChangeType::Removed, ChangeType::Moved, ChangeType::Replaced});
   e.status = f.oneOf("status", {ChangeStatus::New, ChangeStatus::Updated, ChangeStatus::Retracted});
   e.confidence = f.number("confidence", 0.0, 1.0);
-  if (f.has("reference"))
-    e.reference = regionOf(Fields(f.at("reference"), name, where + " reference"));
-  if (f.has("current")) e.current = regionOf(Fields(f.at("current"), name, where + " current"));
+  if (f.has("reference")) e.reference = regionOf(Fields(r, f.at("reference"), event, "reference"));
+  if (f.has("current")) e.current = regionOf(Fields(r, f.at("current"), event, "current"));
   const bool needs_reference = e.type != ChangeType::Added;
   const bool needs_current = e.type != ChangeType::Removed;
   if (e.reference.empty() == needs_reference || e.current.empty() == needs_current)
@@ -179,13 +169,14 @@ std::string changesToJson(const std::vector<ChangeEvent>& events, int indent) {
 std::vector<ChangeEvent> changesFromJson(const std::string& text, const std::string& name) {
   const json j = detail::parseJson(text, name);
   if (!j.is_array()) throw Error(name, "is not a JSON array of change events");
+  const detail::JsonReader r(name);
   std::vector<ChangeEvent> events;
-  std::map<int, std::size_t> seen;
+  std::set<int> ids;
   for (std::size_t k = 0; k < j.size(); ++k) {
-    events.push_back(eventOf(j[k], name, k));
-    if (!seen.emplace(events.back().id, k).second)
-      throw Error(name, "event " + std::to_string(k + 1) + ": id " +
-                            std::to_string(events.back().id) + " appears twice");
+    events.push_back(eventOf(r, j[k], k));
+    if (!ids.insert(events.back().id).second)
+      r.fail("event " + std::to_string(k + 1),
+             "id " + std::to_string(events.back().id) + " appears twice");
   }
   return events;
 }

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "../json_depth.hpp"
+#include "../json_reader.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
 #include "planesdf/sim.hpp"
@@ -16,6 +17,7 @@
 namespace planesdf::sim {
 namespace {
 using json = nlohmann::json;
+using Reader = detail::JsonReader;
 using ojson = nlohmann::ordered_json;
 using Eigen::Vector2d;
 using Eigen::Vector3d;
@@ -104,98 +106,6 @@ ojson toJson(const SensorModel& s) {
 }
 
 // ---- reading ------------------------------------------------------------------------------------
-
-/// Reads values of one JSON file, naming the element in errors.
-class Reader {
- public:
-  explicit Reader(std::string name) : name_(std::move(name)) {}
-
-  [[noreturn]] void fail(const std::string& element, const std::string& message) const {
-    throw Error(name_, element + ": " + message);
-  }
-
-  static std::string shown(const json& v) {
-    std::string s = v.dump();
-    if (s.size() > 40) s = s.substr(0, 40) + "...";
-    return s;
-  }
-
-  /// Checks that `j` is an object with only `allowed` keys and all `required` keys.
-  void object(const json& j, const std::string& element, std::initializer_list<const char*> allowed,
-              std::initializer_list<const char*> required = {}) const {
-    if (!j.is_object()) fail(element, "expected a JSON object, got " + shown(j));
-    for (auto it = j.begin(); it != j.end(); ++it) {
-      bool known = false;
-      for (const char* k : allowed) known = known || it.key() == k;
-      if (!known) {
-        std::string list;
-        for (const char* k : allowed) list += std::string(list.empty() ? "" : ", ") + k;
-        fail(element, "unknown key '" + it.key() + "' (expected " + list + ")");
-      }
-    }
-    for (const char* k : required)
-      if (!j.contains(k)) fail(element, std::string("missing key '") + k + "'");
-  }
-
-  double number(const json& v, const std::string& element) const {
-    if (!v.is_number()) fail(element, "expected a number, got " + shown(v));
-    const double x = v.get<double>();
-    if (!std::isfinite(x)) fail(element, "expected a finite number, got " + shown(v));
-    return x;
-  }
-
-  long long integer(const json& v, const std::string& element, long long lo, long long hi) const {
-    if (!v.is_number_integer()) fail(element, "expected an integer, got " + shown(v));
-    if (v.is_number_unsigned() && v.get<unsigned long long>() > static_cast<unsigned long long>(hi))
-      fail(element,
-           "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + shown(v));
-    const long long x = v.get<long long>();
-    if (x < lo || x > hi)
-      fail(element,
-           "must be in [" + std::to_string(lo) + ", " + std::to_string(hi) + "], got " + shown(v));
-    return x;
-  }
-
-  int integer(const json& v, const std::string& element) const {
-    return static_cast<int>(integer(v, element, -1000000000LL, 1000000000LL));
-  }
-
-  bool boolean(const json& v, const std::string& element) const {
-    if (!v.is_boolean()) fail(element, "expected true or false, got " + shown(v));
-    return v.get<bool>();
-  }
-
-  std::string string(const json& v, const std::string& element) const {
-    if (!v.is_string()) fail(element, "expected a string, got " + shown(v));
-    return v.get<std::string>();
-  }
-
-  template <int N>
-  Eigen::Matrix<double, N, 1> vector(const json& v, const std::string& element) const {
-    if (!v.is_array() || v.size() != N)
-      fail(element, "expected an array of " + std::to_string(N) + " numbers, got " + shown(v));
-    Eigen::Matrix<double, N, 1> out;
-    for (int i = 0; i < N; ++i)
-      out[i] = number(v[static_cast<std::size_t>(i)], element + "[" + std::to_string(i) + "]");
-    return out;
-  }
-
-  std::vector<int> idList(const json& v, const std::string& element) const {
-    if (!v.is_array()) fail(element, "expected an array of object ids, got " + shown(v));
-    std::vector<int> out;
-    for (std::size_t i = 0; i < v.size(); ++i)
-      out.push_back(integer(v[i], element + "[" + std::to_string(i) + "]"));
-    return out;
-  }
-
-  const json& array(const json& v, const std::string& element) const {
-    if (!v.is_array()) fail(element, "expected an array, got " + shown(v));
-    return v;
-  }
-
- private:
-  std::string name_;
-};
 
 template <class T, class F>
 void optional(const json& j, const char* key, T& out, F read) {
