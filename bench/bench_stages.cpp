@@ -14,7 +14,7 @@
 #include <algorithm>
 #include <vector>
 
-#include "planesdf/change.hpp"
+#include "change/change_internal.hpp"
 #include "planesdf/map.hpp"
 #include "planesdf/plane.hpp"
 #include "planesdf/sim.hpp"

@@ -1,6 +1,6 @@
 // `planesdf demo [--out DIR] [--scene tabletop|room] [--seed N]`: the built-in default run
-// (DESIGN §3). Simulates a session pair with ground truth, fuses both sessions frame by frame,
-// detects the changes, scores them and writes report.json (the eval object plus timings) and
+// (design.md, "Formats"). Simulates a session pair with ground truth, fuses both sessions frame by
+// frame, detects the changes, scores them and writes report.json (the eval object plus timings) and
 // report.md (figures, events and the pictures).
 #include <algorithm>
 #include <chrono>

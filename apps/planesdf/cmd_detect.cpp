@@ -1,5 +1,6 @@
 // `planesdf detect REFERENCE CURRENT --out DIR [--config FILE]`: change detection between two
-// sessions, with the outputs of DESIGN §3 (changes.json, removed/added point PLYs, planes/*.png).
+// sessions, with the outputs of design.md, "Formats" (changes.json, removed/added point PLYs,
+// planes/*.png).
 #include <chrono>
 #include <cstdio>
 #include <iostream>

@@ -1,5 +1,6 @@
 // `planesdf eval DETECT_DIR --gt-reference R.ply --gt-current C.ply [--tol M] [--json]`: scores
-// the removed_points.ply / added_points.ply of a detect output against ground truth (DESIGN §3).
+// the removed_points.ply / added_points.ply of a detect output against ground truth (design.md,
+// "Formats").
 #include <cmath>
 #include <cstdio>
 #include <filesystem>

@@ -1,5 +1,5 @@
 // `planesdf simulate --scene tabletop|room|FILE.json [--seed N] --out DIR`: a synthetic session
-// pair with ground truth (DESIGN §3), progress on stderr, a summary on stdout.
+// pair with ground truth (design.md, "Formats"), progress on stderr, a summary on stdout.
 #include <chrono>
 #include <cstdio>
 #include <filesystem>

@@ -14,7 +14,8 @@ constexpr int kExitOk = 0;
 constexpr int kExitBadInput = 1;
 constexpr int kExitUsage = 2;  ///< usage errors and subcommands that are not implemented yet
 
-/// Parameters shared by every subcommand that builds maps (DESIGN §2), as given on the line.
+/// Parameters shared by every subcommand that builds maps (design.md, "Pipeline"), as given on the
+/// line.
 struct PipelineArgs {
   Config cfg;
   /// "auto", "X,Y,Z", or empty: +z, except for an organised cloud given in its own camera

@@ -1,4 +1,4 @@
-// planesdf: the command-line tool. One executable with the subcommands of DESIGN §3; each
+// planesdf: the command-line tool. One executable with the subcommands of docs/usage.md; each
 // subcommand lives in cmd_<name>.cpp.
 //
 // Exit codes: 0 success; 1 bad input or a failed run (one line on stderr naming the file and
@@ -174,7 +174,7 @@ int main(int argc, char** argv) {
                    "Stream: Config::event_settle_frames (default: the Config's)")
       ->check(CLI::Range(0, 100000));
 
-  // info (ours, beyond DESIGN §3): check that an input loads and show what it holds
+  // info: check that an input loads and show what it holds
   std::string info_input;
   auto* info = app.add_subcommand("info", "Show what a session input or map holds");
   info->add_option("INPUT", info_input, "Scene cloud, TUM folder, .psdf map or .rawlog")

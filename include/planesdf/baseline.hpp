@@ -1,9 +1,9 @@
 #pragma once
 /// \file baseline.hpp
 /// Baselines for the paper-style comparison (issue 5, Table I): change detection without planes or
-/// SDFs, with outputs in the `planesdf detect` point format (DESIGN §3: `removed_points.ply` and
-/// `added_points.ply`, a vertex property `int change_id` per point) so `planesdf eval` and
-/// evaluateChanges score them exactly as they score PlaneSDF.
+/// SDFs, with outputs in the `planesdf detect` point format (design.md, "Formats":
+/// `removed_points.ply` and `added_points.ply`, a vertex property `int change_id` per point) so
+/// `planesdf eval` and evaluateChanges score them exactly as they score PlaneSDF.
 ///
 /// Point-distance differencing: both scene clouds are voxel-downsampled (one centroid per cell of
 /// `voxel`); a reference centroid with no current centroid within `distance` is removed, a current

@@ -1,7 +1,7 @@
 #pragma once
 /// \file comparison.hpp
-/// Height-map comparison (paper §III-C, eq. 2), mask cleaning and changed blobs (DESIGN §2 rows
-/// "height comparison", "mask cleaning", "blobs").
+/// Height-map comparison (paper §III-C, eq. 2), mask cleaning and changed blobs (design.md,
+/// "Pipeline" and "Change").
 ///
 /// Every mask here is on the SOURCE grid. A source cell is
 ///   * unknown when it is unobserved, or when any of the 2x2 target cells eq. 2 needs is
@@ -98,7 +98,7 @@ int largeObjectCells(const Config& cfg, double cell_size);
 /// smaller than `join_below` cells make one blob (the rims of a small object's sides). The paper
 /// selects the objects the change clusters overlap highly, and a box swapped on a shelf changes a
 /// sliver of the shelf, which is one object of the wall's plane. min_overlap = 0 always grows
-/// (DESIGN's blobs). Changed cells off any object are not blobs (in the source→target direction
+/// (the brief's blobs). Changed cells off any object are not blobs (in the source→target direction
 /// they are places where something appeared: the reverse run reports them). Blobs of whole objects
 /// come first, by object label, then the slivers, by component (raster order of their first cell).
 /// Throws planesdf::Error("change", ...) when the two grids differ.

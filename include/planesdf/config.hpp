@@ -1,8 +1,8 @@
 #pragma once
 /// \file config.hpp
-/// One plain struct with every parameter of the pipeline (DESIGN §2). Values from the paper are
-/// the defaults (δn, δd, δh, bins, σ, α, δ_blob, voxel, band); the others are ours. Passed down
-/// explicitly; there are no globals.
+/// One plain struct with every parameter of the pipeline (design.md, "Pipeline"). Values from the
+/// paper are the defaults (δn, δd, δh, bins, σ, α, δ_blob, voxel, band); the others are ours.
+/// Passed down explicitly; there are no globals.
 
 #include <Eigen/Core>
 
@@ -177,7 +177,7 @@ struct Config {
   /// h_obj is sensor noise percolating over a far or grazing surface (single noisy cells a few
   /// mm above h_obj, touching diagonally), not a solid object: only its opening (the cells of
   /// the 3x3 squares inside it) stays. Solid objects, 3x3 cells (2 cm) and wider, have a third
-  /// or more of such cells and stay whole. 0 keeps every component (DESIGN's plain components).
+  /// or more of such cells and stay whole. 0 keeps every component (the brief's plain components).
   double object_min_solidity = 0.02;
 
   // --- registration ------------------------------------------------------------------------------
@@ -193,7 +193,7 @@ struct Config {
   /// component of at least blob_large_area (m², larger than one movable object: a shelf with
   /// its back panel in a wall's band, a noisy stretch of a far wall) of which the change covers
   /// less than blob_min_overlap: of that, only the changed cells join, and such a blob is a
-  /// change only on 3D evidence. blob_min_overlap = 0 always grows (DESIGN's blobs).
+  /// change only on 3D evidence. blob_min_overlap = 0 always grows (the brief's blobs).
   double blob_min_overlap = 0.5;
   double blob_large_area = 0.1;  ///< m²
   /// A blob without 3D evidence (verdict not Changed) of which at least through_band_top of the

@@ -1,6 +1,6 @@
 #pragma once
 /// \file eval.hpp
-/// Scoring a change detection against ground truth (DESIGN §3, `planesdf eval`): the point-level
+/// Scoring a change detection against ground truth (`planesdf eval`): the point-level
 /// precision / recall / F1 and the object-level M (missed) and W (wrong) counts of the paper's
 /// Table I, per side (removed, added) and pooled.
 ///
@@ -52,7 +52,7 @@ struct EvalResult {
   double tol = 0.0;   ///< the match distance used (m)
 };
 
-/// Fills precision, recall and f1 of `s` from its point counts. Empty-side rule (DESIGN §3): no
+/// Fills precision, recall and f1 of `s` from its point counts. Empty-side rule: no
 /// ground truth and no prediction scores 1 on all three; otherwise an empty denominator scores 0
 /// (so a prediction with no ground truth has precision 0 and F1 0).
 void computeRates(SideScore& s);
@@ -65,17 +65,17 @@ SideScore scoreSide(const PointCloud& predicted, const PointCloud& gt, double to
 /// Pools two sides: point counts, objects, clusters, M and W summed; rates from the sums.
 SideScore poolScores(const SideScore& a, const SideScore& b);
 
-/// Scores a `detect` output against ground truth (DESIGN §3): `removed_pred` against
+/// Scores a `detect` output (design.md, "Formats") against ground truth: `removed_pred` against
 /// `gt_reference`, `added_pred` against `gt_current`, and both pooled. Same errors as scoreSide.
 EvalResult evaluateChanges(const PointCloud& removed_pred, const PointCloud& added_pred,
                            const PointCloud& gt_reference, const PointCloud& gt_current,
                            double tol);
 
-/// The `eval --json` object (DESIGN §3): top-level pooled "precision", "recall", "f1", "missed",
-/// "wrong", then "removed" and "added" objects with the same five keys. Every level also carries
-/// the point, object and cluster counts ("predicted_points", "gt_points", "matched_predicted",
-/// "matched_gt", "gt_objects", "predicted_clusters"); the top level carries "tol". Indented by
-/// `indent` spaces (a negative value gives one line).
+/// The `eval --json` object (design.md, "Formats"): top-level pooled "precision", "recall", "f1",
+/// "missed", "wrong", then "removed" and "added" objects with the same five keys. Every level also
+/// carries the point, object and cluster counts ("predicted_points", "gt_points",
+/// "matched_predicted", "matched_gt", "gt_objects", "predicted_clusters"); the top level carries
+/// "tol". Indented by `indent` spaces (a negative value gives one line).
 std::string evalToJson(const EvalResult& result, int indent = 2);
 
 }  // namespace planesdf

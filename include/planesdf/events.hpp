@@ -1,10 +1,11 @@
 #pragma once
 /// \file events.hpp
-/// Incremental change detection (DESIGN §3): a ChangeDetector shares the reference map and, each
-/// time update(current) is called while the current session is being mapped, re-checks only the
-/// plane pairs whose current volume changed since the last call, and tells user callbacks about
-/// each change once (status New), again when a later frame changes its type, extent or
-/// confidence (Updated), and when later frames show there is no change after all (Retracted).
+/// Incremental change detection (design.md, "Incremental detection"): a ChangeDetector shares the
+/// reference map and, each time update(current) is called while the current session is being
+/// mapped, re-checks only the plane pairs whose current volume changed since the last call, and
+/// tells user callbacks about each change once (status New), again when a later frame changes its
+/// type, extent or confidence (Updated), and when later frames show there is no change after all
+/// (Retracted).
 ///
 /// Stable events (design.md, "Stable events"): a result is announced only once the updates over
 /// Config::event_settle_frames frames of the current session found it with the same type (over

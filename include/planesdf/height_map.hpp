@@ -1,6 +1,6 @@
 #pragma once
 /// \file height_map.hpp
-/// The 2D stage of a PlaneSDF (DESIGN §2, rows "height map" and "object map"; paper §III-A):
+/// The 2D stage of a PlaneSDF (paper §III-A; design.md, "Pipeline"):
 /// per plane, a height map at voxel resolution (max surface height above the plane per cell,
 /// 0 = observed flat/free, -1 = unobserved), the object map (8-connected components of cells
 /// higher than h_obj), small reusable 2D mask helpers for the change stage, and PNG pictures.

@@ -1,6 +1,6 @@
 #pragma once
 /// \file plane.hpp
-/// The plane stage (DESIGN §2 "plane detection", "plane filter", "plane refinement"): the Plane
+/// The plane stage (design.md, "Pipeline"): the Plane
 /// struct with its fixed local frame, PCA normals, whole-cloud detection (DP-vMF-means normal
 /// clustering + offset split), per-frame RANSAC, a tracker merging frame planes into global planes
 /// with stable ids, and robust point-to-plane refinement.

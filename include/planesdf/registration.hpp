@@ -1,7 +1,7 @@
 #pragma once
 /// \file registration.hpp
-/// PlaneSDF registration (paper §III-B, DESIGN §2 row "registration") and the in-plane
-/// (u, v, yaw) refinement from static height-map structure (DESIGN §2, beyond the paper).
+/// PlaneSDF registration (paper §III-B) and the in-plane (u, v, yaw)
+/// refinement from static height-map structure (beyond the paper; design.md, "Registration").
 ///
 /// Both sessions are assumed to share one world frame; registration only absorbs small drift.
 /// A source plane i matches a target plane j when

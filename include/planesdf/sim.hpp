@@ -1,7 +1,7 @@
 #pragma once
 /// \file sim.hpp
-/// The synthetic scene simulator behind `planesdf simulate` (DESIGN §3, issue 5): a room with
-/// tables, a shelf and small objects seen in two sessions (reference, current) that differ by
+/// The synthetic scene simulator behind `planesdf simulate` (design.md, "Formats", issue 5): a room
+/// with tables, a shelf and small objects seen in two sessions (reference, current) that differ by
 /// known changes, rendered by exact ray casting with a Kinect-like depth noise model, plus the
 /// ground truth of which points belong to changed objects. Each session is given as frames with
 /// poses, as a whole-scene cloud and as the whole-scene reconstruction a mapper would export (TSDF
@@ -365,7 +365,7 @@ struct SimulateOptions {
 /// options.reconstruction_voxel (planesdf::Error naming it).
 Simulation simulate(const Scene& scene, const SimulateOptions& options = {});
 
-/// Writes the `planesdf simulate` folder (DESIGN §3), binary little-endian PLYs:
+/// Writes the `planesdf simulate` folder (design.md, "Formats"), binary little-endian PLYs:
 ///   reference/, current/                  TUM folders with the reported poses
 ///   reference.ply, current.ply            whole-scene clouds (SessionData::cloud)
 ///   reference_recon.ply, current_recon.ply  reconstructions (SessionData::reconstruction)

@@ -1,6 +1,6 @@
 #pragma once
 /// \file tsdf.hpp
-/// The block-sparse TSDF volume of one PlaneSDF and its fusion (DESIGN §2, "PlaneSDF fusion").
+/// The block-sparse TSDF volume of one PlaneSDF and its fusion (design.md, "Pipeline").
 ///
 /// A volume lives in its plane's LOCAL frame: x = u and y = v span the plane, z = h is the height
 /// above the plane along its normal (positive on the free side). Voxels are cubes of side

@@ -1,10 +1,10 @@
 #pragma once
 /// \file validation.hpp
-/// 3D voxel validation of a changed-object candidate (paper §III-D; DESIGN §2, rows "key voxels",
-/// "features", "similarity"): key voxels of a source voxel blob are local extrema of the
-/// determinant of the TSDF Hessian; each gets a 451-dim shape feature (eigenpair histograms of the
-/// Hessians of its 3x3x3 neighbourhood plus a Gaussian-weighted SDF), compared with the feature of
-/// the corresponding target location; the blob is changed when the mean similarity < δ_blob.
+/// 3D voxel validation of a changed-object candidate (paper §III-D; design.md, "Pipeline"): key
+/// voxels of a source voxel blob are local extrema of the determinant of the TSDF Hessian; each
+/// gets a 451-dim shape feature (eigenpair histograms of the Hessians of its 3x3x3 neighbourhood
+/// plus a Gaussian-weighted SDF), compared with the feature of the corresponding target location;
+/// the blob is changed when the mean similarity < δ_blob.
 ///
 /// Choices made where the paper is vague (all documented again at the functions below):
 ///  * Units. Voxel indices are global TSDF voxel indices (see tsdf.hpp). The 3D Sobel filter is
@@ -160,7 +160,7 @@ std::optional<VoxelFeature> featureAt(
 double similarity(const Eigen::VectorXd& f, const Eigen::VectorXd& g, double alpha);
 
 /// The observed voxels (weight > 0 and >= w_min) of `vol` in the given (i, j) columns with
-/// k in [k_min, k_max]: the voxel blob of a set of 2D cells (DESIGN "blobs"). Columns are
+/// k in [k_min, k_max]: the voxel blob of a set of 2D cells (the brief's blobs). Columns are
 /// global voxel columns (cell (x, y) of a GridGeometry g is column (g.i0 + x, g.j0 + y)).
 /// Ordered column by column (input order), k ascending; duplicate columns are ignored.
 std::vector<Eigen::Vector3i> blobVoxelsFromColumns(const TsdfVolume& vol,

@@ -9,7 +9,7 @@
 #include <unordered_set>
 #include <utility>
 
-#include "planesdf/change.hpp"
+#include "change_internal.hpp"
 
 namespace planesdf {
 

@@ -1,7 +1,7 @@
 // The comparison of one registered plane pair: paper eq. 2 on the height maps, blobs, 3D
 // validation, and the candidates with their points (see change.hpp, comparePlanePair).
 
-#include "planesdf/change.hpp"
+#include "change_internal.hpp"
 
 #if defined(__SSE2__)
 #include <immintrin.h>
@@ -1158,7 +1158,7 @@ PointOwners pointOwners(const PairScope& s, std::vector<OwnedCell> owned, int ri
   return p;
 }
 
-/// Points: DESIGN's "input points that fused into" the blobs' voxels. A point updates the voxels
+/// Points: the brief's "input points that fused into" the blobs' voxels. A point updates the voxels
 /// within the truncation of its surface, so the points within truncation_voxels cells of a
 /// blob's columns (with the neighbouring blob cell's upper bound, from the plane up: vertical
 /// faces seen from the side) count too; a cell between two blobs goes to the first (in raster

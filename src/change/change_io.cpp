@@ -1,5 +1,5 @@
-// detect outputs: changes.json, removed/added point PLYs and per-stage pictures (DESIGN §3),
-// written all or nothing and read back.
+// detect outputs: changes.json, removed/added point PLYs and per-stage pictures (design.md,
+// "Formats"), written all or nothing and read back.
 
 #include <cmath>
 #include <filesystem>

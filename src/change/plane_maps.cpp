@@ -11,7 +11,7 @@
 
 #include "../numeric.hpp"
 #include "band_filter.hpp"
-#include "planesdf/change.hpp"
+#include "change_internal.hpp"
 
 namespace planesdf {
 namespace {

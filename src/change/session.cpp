@@ -13,7 +13,7 @@
 
 #include "../numeric.hpp"
 #include "../parallel.hpp"
-#include "planesdf/change.hpp"
+#include "change_internal.hpp"
 #include "planesdf/error.hpp"
 #include "session_comparison.hpp"
 

@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-#include "planesdf/change.hpp"
+#include "change_internal.hpp"
 #include "planesdf/map.hpp"
 
 namespace planesdf::detail {

@@ -1,4 +1,4 @@
-// Change-detection scoring (DESIGN §3, `planesdf eval`): point matching within a tolerance on a
+// Change-detection scoring (`planesdf eval`): point matching within a tolerance on a
 // hashed uniform grid, then point-level precision / recall / F1 and object-level M / W.
 
 #include "planesdf/eval.hpp"

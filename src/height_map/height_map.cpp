@@ -1,4 +1,4 @@
-// Height map of a PlaneSDF volume (DESIGN §2 "height map"): a top-down walk of every voxel
+// Height map of a PlaneSDF volume (design.md, "Pipeline"): a top-down walk of every voxel
 // column, 64 columns (one block column) at a time, parallel over block columns.
 
 #include "planesdf/height_map.hpp"

@@ -1,4 +1,4 @@
-// Object map (DESIGN §2 "object map"): 8-connected components of the cells above h_obj, speckle
+// Object map (design.md, "Pipeline"): 8-connected components of the cells above h_obj, speckle
 // components reduced to their opening (Config::object_min_solidity), with per-object statistics.
 
 #include <algorithm>

@@ -1,1 +1,1 @@
-set(PLANESDF_MAP_SOURCES map.cpp map_io.cpp)
+set(PLANESDF_MAP_SOURCES map.cpp map_io.cpp config_io.cpp)

@@ -15,7 +15,7 @@
 #include <thread>
 
 #include "analytic_scene.hpp"
-#include "planesdf/change.hpp"
+#include "change/change_internal.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/events.hpp"
 #include "planesdf/io/ply.hpp"
@@ -995,7 +995,7 @@ TEST(ComparePlanePair, ABoxTakenOffALargeComponentIsTheBoxNotTheComponent) {
   // panel in a wall's band is such a component) with a 10 x 10 x 8 cm box on it, then without
   // the box. The box's change covers 4 % of the component: the removed region is the box's
   // footprint (14 x 14 cells, dilated by one: at most 16 x 16), not the whole platform, which
-  // DESIGN's plain growth (blob_min_overlap 0) reports.
+  // the brief's plain growth (blob_min_overlap 0) reports.
   const auto platform = [](double u, double v) {
     return std::abs(u) < 0.3 && std::abs(v) < 0.3 ? 0.03 : 0.0;
   };

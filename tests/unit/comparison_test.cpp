@@ -418,7 +418,7 @@ TEST(HeightCompare, BlobsTakeOnlyTheChangedSliverOfALargeComponent) {
   EXPECT_EQ(blobs[0].area + blobs[1].area, 80);
   // A change cluster on 100 of its cells (6.7 %) grows into the whole shelf, and its slivers
   // join it; so does any change when
-  // min_overlap is 0 (DESIGN's blobs) or the shelf is below large_cells.
+  // min_overlap is 0 (the brief's blobs) or the shelf is below large_cells.
   fill(20, 20, 10, 10);
   blobs = changedBlobs(mask, objects, 0.05, 1000);
   ASSERT_EQ(blobs.size(), 2u);

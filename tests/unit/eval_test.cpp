@@ -1,4 +1,4 @@
-// Tests for planesdf::evaluateChanges and friends (DESIGN §3, `planesdf eval`): hand-built point
+// Tests for planesdf::evaluateChanges and friends (`planesdf eval`): hand-built point
 // sets with known precision / recall / F1 / M / W, the tolerance boundary, empty sides, pooling,
 // invalid points, missing id fields, the JSON keys, and the grid search against brute force.
 

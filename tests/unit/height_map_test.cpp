@@ -636,7 +636,7 @@ HeightMap syntheticMap(int w, int h, float fill) {
 
 TEST(ObjectMap, DiagonallyTouchingObjectsAreOne) {
   Config cfg = testConfig();
-  cfg.object_min_solidity = 0.0;  // DESIGN's plain components: the lone cell is an object too
+  cfg.object_min_solidity = 0.0;  // the brief's plain components: the lone cell is an object too
   HeightMap hm = syntheticMap(20, 12, 0.0f);
   // Two 3x3 squares touching at one corner: (2..4, 2..4) and (5..7, 5..7).
   for (int y = 2; y <= 4; ++y)

@@ -12,8 +12,8 @@
 #include <set>
 
 #include "analytic_scene.hpp"
+#include "change/change_internal.hpp"
 #include "map/map_internal.hpp"
-#include "planesdf/change.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/height_map.hpp"
 #include "planesdf/map.hpp"

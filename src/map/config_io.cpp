@@ -6,7 +6,7 @@
 #include <variant>
 #include <vector>
 
-#include "json_depth.hpp"
+#include "../json_depth.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/atomic_file.hpp"
 #include "planesdf/plane.hpp"
