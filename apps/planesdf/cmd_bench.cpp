@@ -130,107 +130,125 @@ RoomFigures roomBench(int max_frames) {
   return r;
 }
 
-int runSingleBench(const BenchArgs& args) {
-  const sim::Scene scene = sim::makePreset("tabletop", kBenchSeed);
-  std::cerr << "bench: tabletop preset, seed " << kBenchSeed << ", 640x480 frames, voxel "
-            << Config{}.voxel_size * 1000 << " mm\n";
-  const Sequence ref = renderSession(scene, scene.reference, 0, args.frames, "reference");
-  const Sequence cur = renderSession(scene, scene.current, 1, args.frames, "current");
-
-  Config cfg;
+/// The tabletop sequence: both sessions fused frame by frame (the reference's frames timed stage
+/// by stage), then one detectChanges.
+struct TabletopFigures {
   std::vector<double> integrate_ms, integrate_cpu_ms, current_ms, tracking_ms, points_ms, fusion_ms;
+  double reserve_ms = 0.0;
+  double detect_ms = 0.0;
+  std::size_t events = 0;
+  double peak_rss_mb = 0.0;  ///< after the maps and the detection
+  std::size_t map_bytes = 0, map_bytes_in_use = 0, voxels = 0, planes = 0;
+};
+
+TabletopFigures tabletopBench(const Sequence& ref, const Sequence& cur, const Config& cfg,
+                              int reserve_mb) {
+  TabletopFigures f;
   Map reference(cfg), current(cfg);
   // As a real-time pipeline does at start-up: the maps' block memory is faulted in before the
   // first frame (fresh memory costs a page fault and zeroing per page; see Map::reserveMemory).
-  const auto reserve_bytes = static_cast<std::size_t>(args.reserve_mb) << 20;
+  const auto reserve_bytes = static_cast<std::size_t>(reserve_mb) << 20;
   const auto tr = Clock::now();
   reference.reserveMemory(reserve_bytes);
   current.reserveMemory(reserve_bytes);
-  const double reserve_ms = msSince(tr);
-  std::cerr << "bench: reserved " << args.reserve_mb << " MiB of block memory per map in "
-            << reserve_ms << " ms\n";
+  f.reserve_ms = msSince(tr);
+  std::cerr << "bench: reserved " << reserve_mb << " MiB of block memory per map in "
+            << f.reserve_ms << " ms\n";
   for (std::size_t i = 0; i < ref.frames.size(); ++i) {
     const auto t0 = Clock::now();
     const double cpu0 = processCpuMs();
     const IntegrateStats st = reference.integrate(ref.frames[i], ref.poses[i]);
-    integrate_ms.push_back(msSince(t0));
-    integrate_cpu_ms.push_back(processCpuMs() - cpu0);
-    tracking_ms.push_back(st.tracking_ms);
-    points_ms.push_back(st.points_ms);
-    fusion_ms.push_back(st.fusion_ms);
+    f.integrate_ms.push_back(msSince(t0));
+    f.integrate_cpu_ms.push_back(processCpuMs() - cpu0);
+    f.tracking_ms.push_back(st.tracking_ms);
+    f.points_ms.push_back(st.points_ms);
+    f.fusion_ms.push_back(st.fusion_ms);
     std::cerr << "bench: planesdf integrate " << (i + 1) << "/" << ref.frames.size() << ": "
-              << integrate_ms.back() << " ms\n";
+              << f.integrate_ms.back() << " ms\n";
   }
   for (std::size_t i = 0; i < cur.frames.size(); ++i) {
     const auto t0 = Clock::now();
     current.integrate(cur.frames[i], cur.poses[i]);
-    current_ms.push_back(msSince(t0));
+    f.current_ms.push_back(msSince(t0));
   }
-  const double rss_planesdf = peakRssMb();
   const auto td = Clock::now();
-  const ChangeSet set = detectChanges(reference, current, cfg);
-  const double detect_ms = msSince(td);
-  std::cerr << "bench: detectChanges " << detect_ms << " ms, " << set.events.size() << " events\n";
+  f.events = detectChanges(reference, current, cfg).events.size();
+  f.detect_ms = msSince(td);
+  std::cerr << "bench: detectChanges " << f.detect_ms << " ms, " << f.events << " events\n";
+  f.peak_rss_mb = peakRssMb();
+  f.map_bytes = reference.memoryBytes();
+  f.map_bytes_in_use = reference.memoryBytes() - reference.reservedBytes();
+  f.voxels = mapVoxels(reference);
+  f.planes = reference.planes().size();
+  return f;
+}
 
-  std::vector<double> octomap_ms;
-  std::string octomap_note;
-  double octomap_bytes = std::nan("");
+/// The same reference frames into an OctoMap OcTree at the same resolution and range.
+struct OctomapFigures {
+  std::vector<double> insert_ms;  ///< empty without the adapter
+  double bytes = std::nan("");
+  std::string note;
+};
+
+OctomapFigures octomapBench([[maybe_unused]] const Sequence& ref,
+                            [[maybe_unused]] const Config& cfg) {
+  OctomapFigures o;
 #ifdef PLANESDF_HAVE_OCTOMAP
   octomap_adapter::OccupancyOptions oo;
   oo.resolution = cfg.voxel_size;
   oo.max_range = cfg.max_depth;
   octomap_adapter::OccupancyMap tree(oo);
   for (std::size_t i = 0; i < ref.frames.size(); ++i) {
-    octomap_ms.push_back(tree.insertFrame(ref.frames[i], ref.poses[i]));
+    o.insert_ms.push_back(tree.insertFrame(ref.frames[i], ref.poses[i]));
     std::cerr << "bench: octomap insertPointCloud " << (i + 1) << "/" << ref.frames.size() << ": "
-              << octomap_ms.back() << " ms\n";
+              << o.insert_ms.back() << " ms\n";
   }
-  octomap_bytes = static_cast<double>(tree.memoryBytes());
-  octomap_note = "octomap::OcTree insertPointCloud from the camera centre, same frames, " +
-                 std::to_string(oo.resolution) + " m, max range " + std::to_string(oo.max_range) +
-                 " m, discretize on";
+  o.bytes = static_cast<double>(tree.memoryBytes());
+  o.note = "octomap::OcTree insertPointCloud from the camera centre, same frames, " +
+           std::to_string(oo.resolution) + " m, max range " + std::to_string(oo.max_range) +
+           " m, discretize on";
 #else
-  octomap_note = "the OctoMap adapter is not built (PLANESDF_BUILD_OCTOMAP=OFF)";
+  o.note = "the OctoMap adapter is not built (PLANESDF_BUILD_OCTOMAP=OFF)";
 #endif
+  return o;
+}
 
+json benchJson(const sim::Scene& scene, std::size_t frames, const Config& cfg, int reserve_mb,
+               double peak_rss_mb, const TabletopFigures& t, const OctomapFigures& o,
+               const RoomFigures& room) {
   json j;
   j["scene"] = "tabletop";
   j["seed"] = kBenchSeed;
-  j["frames"] = ref.frames.size();
+  j["frames"] = frames;
   j["width"] = scene.sensor.intrinsics.width;
   j["height"] = scene.sensor.intrinsics.height;
   j["voxel_size"] = cfg.voxel_size;
   j["threads"] = cfg.threads;
-  j["integrate_ms_median"] = quantile(integrate_ms, 0.5);
-  j["integrate_cpu_ms_median"] = quantile(integrate_cpu_ms, 0.5);  // all threads' CPU time
-  j["integrate_ms_p95"] = quantile(integrate_ms, 0.95);
-  j["integrate_ms_max"] = quantile(integrate_ms, 1.0);
+  j["integrate_ms_median"] = quantile(t.integrate_ms, 0.5);
+  j["integrate_cpu_ms_median"] = quantile(t.integrate_cpu_ms, 0.5);  // all threads' CPU time
+  j["integrate_ms_p95"] = quantile(t.integrate_ms, 0.95);
+  j["integrate_ms_max"] = quantile(t.integrate_ms, 1.0);
   // The stages of Map::integrate (IntegrateStats): tracking and the kept points run beside the
   // per-pixel pass; fusion is the TSDF update of the plane volumes.
-  j["tracking_ms_median"] = quantile(tracking_ms, 0.5);
-  j["points_ms_median"] = quantile(points_ms, 0.5);
-  j["fusion_ms_median"] = quantile(fusion_ms, 0.5);
-  j["fusion_ms_p95"] = quantile(fusion_ms, 0.95);
-  j["current_integrate_ms_median"] = numberOrNull(quantile(current_ms, 0.5));
-  j["octomap_ms_median"] = numberOrNull(quantile(octomap_ms, 0.5));
-  j["octomap_ms_p95"] = numberOrNull(quantile(octomap_ms, 0.95));
-  j["octomap_bytes"] = numberOrNull(octomap_bytes);
-  j["octomap_note"] = octomap_note;
-  j["detect_ms"] = detect_ms;
-  j["events"] = set.events.size();
-  j["peak_rss_mb"] = peakRssMb();
-  j["peak_rss_mb_before_octomap"] = rss_planesdf;
-  j["map_bytes"] = reference.memoryBytes();
-  j["map_bytes_in_use"] = reference.memoryBytes() - reference.reservedBytes();
-  j["reserve_mb"] = args.reserve_mb;
-  j["reserve_ms"] = reserve_ms;
-  j["voxels"] = mapVoxels(reference);
-  j["planes"] = reference.planes().size();
-
-  // The room pair last, with the tabletop maps freed: its maps are larger than everything above.
-  reference = Map(cfg);
-  current = Map(cfg);
-  const RoomFigures room = roomBench(args.frames);
+  j["tracking_ms_median"] = quantile(t.tracking_ms, 0.5);
+  j["points_ms_median"] = quantile(t.points_ms, 0.5);
+  j["fusion_ms_median"] = quantile(t.fusion_ms, 0.5);
+  j["fusion_ms_p95"] = quantile(t.fusion_ms, 0.95);
+  j["current_integrate_ms_median"] = numberOrNull(quantile(t.current_ms, 0.5));
+  j["octomap_ms_median"] = numberOrNull(quantile(o.insert_ms, 0.5));
+  j["octomap_ms_p95"] = numberOrNull(quantile(o.insert_ms, 0.95));
+  j["octomap_bytes"] = numberOrNull(o.bytes);
+  j["octomap_note"] = o.note;
+  j["detect_ms"] = t.detect_ms;
+  j["events"] = t.events;
+  j["peak_rss_mb"] = peak_rss_mb;  // before the room pair
+  j["peak_rss_mb_before_octomap"] = t.peak_rss_mb;
+  j["map_bytes"] = t.map_bytes;
+  j["map_bytes_in_use"] = t.map_bytes_in_use;
+  j["reserve_mb"] = reserve_mb;
+  j["reserve_ms"] = t.reserve_ms;
+  j["voxels"] = t.voxels;
+  j["planes"] = t.planes;
   j["room_frames"] = room.frames;
   j["room_integrate_ms_median"] = room.integrate_ms_median;
   j["detect_room_ms"] = quantile(room.detect_ms, 0.5);
@@ -242,28 +260,30 @@ int runSingleBench(const BenchArgs& args) {
   j["room_events"] = room.events;
   j["room_voxels"] = room.voxels;
   j["room_map_bytes"] = room.map_bytes;
+  return j;
+}
 
+void printMedianP95(const char* what, const std::vector<double>& v, const char* unit = "ms") {
+  std::printf("  %-34s %10.1f %10.1f %s\n", what, quantile(v, 0.5), quantile(v, 0.95), unit);
+}
+
+void printBench(const json& j, const TabletopFigures& t, const OctomapFigures& o,
+                const RoomFigures& room) {
   std::printf("planesdf bench: tabletop seed %u, %zu frames of %dx%d, voxel %.1f mm\n", kBenchSeed,
-              ref.frames.size(), scene.sensor.intrinsics.width, scene.sensor.intrinsics.height,
-              cfg.voxel_size * 1000);
+              j["frames"].get<std::size_t>(), j["width"].get<int>(), j["height"].get<int>(),
+              j["voxel_size"].get<double>() * 1000);
   std::printf("  %-34s %10s %10s\n", "", "median", "p95");
-  std::printf("  %-34s %10.1f %10.1f ms\n", "planesdf Map::integrate / frame",
-              quantile(integrate_ms, 0.5), quantile(integrate_ms, 0.95));
-  std::printf("  %-34s %10.1f %10.1f ms\n", "  CPU time of all threads / frame",
-              quantile(integrate_cpu_ms, 0.5), quantile(integrate_cpu_ms, 0.95));
-  std::printf("  %-34s %10.1f %10.1f ms\n", "  of which TSDF fusion (all planes)",
-              quantile(fusion_ms, 0.5), quantile(fusion_ms, 0.95));
-  std::printf("  %-34s %10.1f %10.1f ms\n", "  beside the per-pixel pass: tracking",
-              quantile(tracking_ms, 0.5), quantile(tracking_ms, 0.95));
-  std::printf("  %-34s %10.1f %10.1f ms\n", "  then the kept object points",
-              quantile(points_ms, 0.5), quantile(points_ms, 0.95));
-  if (!octomap_ms.empty())
-    std::printf("  %-34s %10.1f %10.1f ms\n", "octomap insertPointCloud / frame",
-                quantile(octomap_ms, 0.5), quantile(octomap_ms, 0.95));
+  printMedianP95("planesdf Map::integrate / frame", t.integrate_ms);
+  printMedianP95("  CPU time of all threads / frame", t.integrate_cpu_ms);
+  printMedianP95("  of which TSDF fusion (all planes)", t.fusion_ms);
+  printMedianP95("  beside the per-pixel pass: tracking", t.tracking_ms);
+  printMedianP95("  then the kept object points", t.points_ms);
+  if (!o.insert_ms.empty())
+    printMedianP95("octomap insertPointCloud / frame", o.insert_ms);
   else
-    std::printf("  octomap: n/a (%s)\n", octomap_note.c_str());
-  std::printf("  %-34s %10.1f ms (%zu events)\n", "detectChanges (one scene pair)", detect_ms,
-              set.events.size());
+    std::printf("  octomap: n/a (%s)\n", o.note.c_str());
+  std::printf("  %-34s %10.1f ms (%zu events)\n", "detectChanges (one scene pair)", t.detect_ms,
+              t.events);
   std::printf("  %-34s %10.1f ms (median of %d; %zu events, %zu + %zu frames)\n",
               "detectChanges (room pair)", quantile(room.detect_ms, 0.5), kRoomDetectRuns,
               room.events, room.frames, room.frames);
@@ -272,17 +292,31 @@ int runSingleBench(const BenchArgs& args) {
               quantile(room.correction_ms, 0.5), quantile(room.forward_ms, 0.5),
               quantile(room.backward_ms, 0.5));
   std::printf("  %-34s %10.1f MB (%.1f MB in use, %.1f MB of the reserve unused)\n",
-              "map memory (reference)", j["map_bytes"].get<double>() / 1e6,
-              j["map_bytes_in_use"].get<double>() / 1e6,
-              (j["map_bytes"].get<double>() - j["map_bytes_in_use"].get<double>()) / 1e6);
+              "map memory (reference)", t.map_bytes / 1e6, t.map_bytes_in_use / 1e6,
+              (t.map_bytes - t.map_bytes_in_use) / 1e6);
   std::printf("  %-34s %10.1f ms (%d MiB per map, before the frames)\n", "memory reserve",
-              reserve_ms, args.reserve_mb);
-  if (std::isfinite(octomap_bytes))
-    std::printf("  %-34s %10.1f MB\n", "octomap memory", octomap_bytes / 1e6);
-  std::printf("  %-34s %10zu in %zu planes\n", "voxels", j["voxels"].get<std::size_t>(),
-              j["planes"].get<std::size_t>());
+              t.reserve_ms, j["reserve_mb"].get<int>());
+  if (std::isfinite(o.bytes)) std::printf("  %-34s %10.1f MB\n", "octomap memory", o.bytes / 1e6);
+  std::printf("  %-34s %10zu in %zu planes\n", "voxels", t.voxels, t.planes);
   std::printf("  %-34s %10.1f MB (before the room pair)\n", "peak RSS",
               j["peak_rss_mb"].get<double>());
+}
+
+int runSingleBench(const BenchArgs& args) {
+  const sim::Scene scene = sim::makePreset("tabletop", kBenchSeed);
+  std::cerr << "bench: tabletop preset, seed " << kBenchSeed << ", 640x480 frames, voxel "
+            << Config{}.voxel_size * 1000 << " mm\n";
+  const Config cfg;
+  const Sequence ref = renderSession(scene, scene.reference, 0, args.frames, "reference");
+  const Sequence cur = renderSession(scene, scene.current, 1, args.frames, "current");
+  const TabletopFigures tabletop = tabletopBench(ref, cur, cfg, args.reserve_mb);
+  const OctomapFigures octomap = octomapBench(ref, cfg);
+  const double peak_rss_mb = peakRssMb();
+  // The room pair last, with the tabletop maps freed: its maps are larger than everything above.
+  const RoomFigures room = roomBench(args.frames);
+  const json j = benchJson(scene, ref.frames.size(), cfg, args.reserve_mb, peak_rss_mb, tabletop,
+                           octomap, room);
+  printBench(j, tabletop, octomap, room);
   if (!args.json.empty()) {
     writeText(args.json, j.dump(2) + "\n");
     std::printf("-> %s\n", args.json.c_str());

@@ -283,114 +283,125 @@ const PlaneMaps& SessionComparison::maps(bool reference, int id) const {
   return reference ? reference_maps_[static_cast<std::size_t>(id)] : current_maps_.at(id).maps;
 }
 
-SessionComparison::Run SessionComparison::run(const Map& current) {
-  const auto t0 = std::chrono::steady_clock::now();
+namespace {
+double msSince(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+}
+}  // namespace
+
+void SessionComparison::computeMatchedMaps(const Map& current,
+                                           const std::vector<PlaneMatch>& forward_matches,
+                                           const std::vector<PlaneMatch>& backward_matches) {
+  std::vector<std::pair<bool, int>> needed;
+  for (const PlaneMatch& m : forward_matches) {
+    needed.emplace_back(true, m.source_id);
+    needed.emplace_back(false, m.target_id);
+  }
+  for (const PlaneMatch& m : backward_matches) {
+    needed.emplace_back(false, m.source_id);
+    needed.emplace_back(true, m.target_id);
+  }
+  computeMaps(current, std::move(needed));
+}
+
+void SessionComparison::updateCorrection(const Map& current,
+                                         const std::vector<PlaneMatch>& forward_matches) {
+  const auto& cp = current.planes();
+  std::vector<std::pair<int, std::uint64_t>> key;
+  for (const PlaneMatch& m : forward_matches)
+    key.emplace_back(m.target_id, cp[static_cast<std::size_t>(m.target_id)].volume.revision());
+  key.emplace_back(-1, cp.size());
+  if (key == correction_key_) return;  // never equal before the first estimate: key is not empty
+  correction_ = sessionCorrection(
+      *reference_, current, forward_matches,
+      [&](bool ref, int id) -> const PlaneMaps& { return maps(ref, id); }, cfg_);
+  correction_key_ = std::move(key);
+}
+
+void SessionComparison::compareDirection(const Map& current, bool forward,
+                                         std::vector<PlaneMatch> matches, Direction& d, Run& out) {
   const Map& reference = *reference_;
   const auto& cp = current.planes();
+  if (forward)
+    for (PlaneMatch& m : matches) m = corrected(m, reference, current, correction_);
+  // A pair whose current volume and correction are as when it was compared keeps its result.
+  const auto keyOf = [&](const PlaneMatch& m) {
+    return std::make_tuple(forward, m.source_id, m.target_id);
+  };
+  const auto revisionOf = [&](const PlaneMatch& m) {
+    return cp[static_cast<std::size_t>(forward ? m.target_id : m.source_id)].volume.revision();
+  };
+  std::vector<PairCache*> kept(matches.size(), nullptr);
+  std::vector<std::size_t> order;
+  for (std::size_t i = 0; i < matches.size(); ++i) {
+    const auto it = pairs_.find(keyOf(matches[i]));
+    if (it != pairs_.end() && it->second.current_revision == revisionOf(matches[i]) &&
+        it->second.correction == correction_ && it->second.num_planes == cp.size())
+      kept[i] = &it->second;
+    else
+      order.push_back(i);
+  }
+  // The pairs to compare are independent: in parallel, each with its own share of the refined
+  // transforms, merged in pair order; largest source maps first (results stay in pair order).
+  const auto cellsOf = [&](std::size_t i) {
+    return maps(forward, matches[i].source_id).heights.numCells();
+  };
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return cellsOf(a) > cellsOf(b); });
+  std::vector<PlanePairResult> results(matches.size());
+  std::vector<std::vector<CandidateChange>> found(matches.size());
+  std::vector<RefinedTransforms> own(matches.size());
+  parallelFor(static_cast<int>(order.size()), cfg_.threads, [&](int k) {
+    const std::size_t i = order[static_cast<std::size_t>(k)];
+    const PlaneMatch& m = matches[i];
+    if (!forward) own[i] = d.refined;  // read only backwards
+    found[i] = compareMatchedPair(reference, current, forward, m, maps(forward, m.source_id),
+                                  maps(!forward, m.target_id), own[i], cfg_, options_, &results[i]);
+  });
+  for (std::size_t i = 0; i < matches.size(); ++i) {
+    const PlaneMatch& m = matches[i];
+    PairCache pc;
+    if (kept[i] != nullptr) {
+      pc = std::move(*kept[i]);  // pairs_ is replaced by d.next after both directions
+      ++out.pairs_reused;
+      if (forward) d.refined[{m.source_id, m.target_id}] = pc.T_target_source;
+    } else {
+      ++out.pairs_checked;
+      if (forward) d.refined.insert(own[i].begin(), own[i].end());
+      pc = PairCache{revisionOf(m), std::move(found[i]), results[i].match.T_target_source_local,
+                     correction_, cp.size()};
+      out.set.pairs.push_back(std::move(results[i]));
+    }
+    for (const CandidateChange& c : pc.candidates) (forward ? d.removed : d.added).push_back(c);
+    d.next[keyOf(m)] = std::move(pc);
+  }
+}
+
+SessionComparison::Run SessionComparison::run(const Map& current) {
+  const auto t0 = std::chrono::steady_clock::now();
   Run out;
   ChangeSet& set = out.set;
   const std::vector<PlaneMatch> forward_matches =
-      uniqueMatches(registerPlanes(reference, current, cfg_));
+      uniqueMatches(registerPlanes(*reference_, current, cfg_));
   const std::vector<PlaneMatch> backward_matches =
-      uniqueMatches(registerPlanes(current, reference, cfg_));
-  const auto msSince = [](std::chrono::steady_clock::time_point t) {
-    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-  };
+      uniqueMatches(registerPlanes(current, *reference_, cfg_));
   // The maps of every matched plane (read-only from here on).
   auto tp = std::chrono::steady_clock::now();
-  {
-    std::vector<std::pair<bool, int>> needed;
-    for (const PlaneMatch& m : forward_matches) {
-      needed.emplace_back(true, m.source_id);
-      needed.emplace_back(false, m.target_id);
-    }
-    for (const PlaneMatch& m : backward_matches) {
-      needed.emplace_back(false, m.source_id);
-      needed.emplace_back(true, m.target_id);
-    }
-    computeMaps(current, std::move(needed));
-  }
+  computeMatchedMaps(current, forward_matches, backward_matches);
   set.maps_ms = msSince(tp);
   // The session-wide correction, estimated again only when a current plane it rests on changed.
   tp = std::chrono::steady_clock::now();
-  if (cfg_.refine_inplane) {
-    std::vector<std::pair<int, std::uint64_t>> key;
-    for (const PlaneMatch& m : forward_matches)
-      key.emplace_back(m.target_id, cp[static_cast<std::size_t>(m.target_id)].volume.revision());
-    key.emplace_back(-1, cp.size());
-    if (key != correction_key_) {  // never equal before the first estimate: key is not empty
-      correction_ = sessionCorrection(
-          reference, current, forward_matches,
-          [&](bool ref, int id) -> const PlaneMaps& { return maps(ref, id); }, cfg_);
-      correction_key_ = std::move(key);
-    }
-  }
+  if (cfg_.refine_inplane) updateCorrection(current, forward_matches);
   set.correction_ms = msSince(tp);
-
-  std::vector<CandidateChange> removed, added;
-  std::map<std::tuple<bool, int, int>, PairCache> next;
-  RefinedTransforms refined;
-  for (bool forward : {true, false}) {  // forward first: its transforms are reused backwards
-    tp = std::chrono::steady_clock::now();
-    std::vector<PlaneMatch> matches = forward ? forward_matches : backward_matches;
-    if (forward)
-      for (PlaneMatch& m : matches) m = corrected(m, reference, current, correction_);
-    // A pair whose current volume and correction are as when it was compared keeps its result.
-    const auto keyOf = [&](const PlaneMatch& m) {
-      return std::make_tuple(forward, m.source_id, m.target_id);
-    };
-    const auto revisionOf = [&](const PlaneMatch& m) {
-      return cp[static_cast<std::size_t>(forward ? m.target_id : m.source_id)].volume.revision();
-    };
-    std::vector<PairCache*> kept(matches.size(), nullptr);
-    std::vector<std::size_t> order;
-    for (std::size_t i = 0; i < matches.size(); ++i) {
-      const auto it = pairs_.find(keyOf(matches[i]));
-      if (it != pairs_.end() && it->second.current_revision == revisionOf(matches[i]) &&
-          it->second.correction == correction_ && it->second.num_planes == cp.size())
-        kept[i] = &it->second;
-      else
-        order.push_back(i);
-    }
-    // The pairs to compare are independent: in parallel, each with its own share of the refined
-    // transforms, merged in pair order; largest source maps first (results stay in pair order).
-    const auto cellsOf = [&](std::size_t i) {
-      return maps(forward, matches[i].source_id).heights.numCells();
-    };
-    std::stable_sort(order.begin(), order.end(),
-                     [&](std::size_t a, std::size_t b) { return cellsOf(a) > cellsOf(b); });
-    std::vector<PlanePairResult> results(matches.size());
-    std::vector<std::vector<CandidateChange>> found(matches.size());
-    std::vector<RefinedTransforms> own(matches.size());
-    parallelFor(static_cast<int>(order.size()), cfg_.threads, [&](int k) {
-      const std::size_t i = order[static_cast<std::size_t>(k)];
-      const PlaneMatch& m = matches[i];
-      if (!forward) own[i] = refined;  // read only backwards
-      found[i] =
-          compareMatchedPair(reference, current, forward, m, maps(forward, m.source_id),
-                             maps(!forward, m.target_id), own[i], cfg_, options_, &results[i]);
-    });
-    for (std::size_t i = 0; i < matches.size(); ++i) {
-      const PlaneMatch& m = matches[i];
-      PairCache pc;
-      if (kept[i] != nullptr) {
-        pc = std::move(*kept[i]);  // pairs_ is replaced by `next` below
-        ++out.pairs_reused;
-        if (forward) refined[{m.source_id, m.target_id}] = pc.T_target_source;
-      } else {
-        ++out.pairs_checked;
-        if (forward) refined.insert(own[i].begin(), own[i].end());
-        pc = PairCache{revisionOf(m), std::move(found[i]), results[i].match.T_target_source_local,
-                       correction_, cp.size()};
-        set.pairs.push_back(std::move(results[i]));
-      }
-      for (const CandidateChange& c : pc.candidates) (forward ? removed : added).push_back(c);
-      next[keyOf(m)] = std::move(pc);
-    }
-    (forward ? set.forward_ms : set.backward_ms) = msSince(tp);
-  }
-  pairs_ = std::move(next);
-  set.events = assembleEvents(std::move(removed), std::move(added), cfg_);
+  Direction d;
+  tp = std::chrono::steady_clock::now();  // forward first: its transforms are reused backwards
+  compareDirection(current, true, forward_matches, d, out);
+  set.forward_ms = msSince(tp);
+  tp = std::chrono::steady_clock::now();
+  compareDirection(current, false, backward_matches, d, out);
+  set.backward_ms = msSince(tp);
+  pairs_ = std::move(d.next);
+  set.events = assembleEvents(std::move(d.removed), std::move(d.added), cfg_);
   set.milliseconds = msSince(t0);
   return out;
 }

@@ -46,6 +46,25 @@ class SessionComparison {
     std::size_t num_planes = 0;  ///< planes of the map when computed (exclusion uses them)
   };
 
+  using PairCaches = std::map<std::tuple<bool, int, int>, PairCache>;
+  /// What the two directions of one run build up: the candidates, the pair caches that replace
+  /// pairs_ at the end, and the forward pairs' refined transforms (reused backwards).
+  struct Direction {
+    std::vector<CandidateChange> removed, added;
+    PairCaches next;
+    RefinedTransforms refined;
+  };
+
+  /// The maps of both directions' matched planes.
+  void computeMatchedMaps(const Map& current, const std::vector<PlaneMatch>& forward_matches,
+                          const std::vector<PlaneMatch>& backward_matches);
+  /// The session correction, estimated again when a forward pair's current volume or the plane
+  /// count changed.
+  void updateCorrection(const Map& current, const std::vector<PlaneMatch>& forward_matches);
+  /// Compares the pairs of one direction (reference -> current when `forward`): a pair whose
+  /// current volume and correction are unchanged keeps its cached result.
+  void compareDirection(const Map& current, bool forward, std::vector<PlaneMatch> matches,
+                        Direction& d, Run& out);
   bool currentMapsValid(const Map& current, int id) const;
   /// The maps of the planes `needed` (reference?, id) that are not cached, in parallel.
   void computeMaps(const Map& current, std::vector<std::pair<bool, int>> needed);
@@ -59,7 +78,7 @@ class SessionComparison {
   std::shared_ptr<PointChunks> reference_chunks_;
   std::map<int, CurrentMaps> current_maps_;
   /// (reference→current?, source id, target id) -> candidates
-  std::map<std::tuple<bool, int, int>, PairCache> pairs_;
+  PairCaches pairs_;
   /// The correction, and the (current plane id, revision) of the forward pairs it was
   /// estimated from and the plane count (re-estimated when they change; empty before the first).
   SessionCorrection correction_;

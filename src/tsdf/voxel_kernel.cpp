@@ -67,165 +67,217 @@ inline void fuseRowScalar(const RowKernel& k, float rx, float ry, float rz, Tsdf
   }
 }
 
+/// A block in camera coordinates: its first voxel centre (also in the plane frame, whose z is the
+/// height) and its axes scaled to one voxel.
+struct BlockInCamera {
+  Eigen::Vector3d c0_local;
+  Eigen::Vector3f c0, ax, ay, az;
+
+  Eigen::Vector3f voxel(float x, float y, float z) const { return c0 + x * ax + y * ay + z * az; }
+};
+
+BlockInCamera blockInCamera(const Eigen::Vector3i& index, const Camera& cam, double vs) {
+  BlockInCamera b;
+  b.c0_local = (index.cast<double>() * kTsdfBlockSide).array() * vs + 0.5 * vs;
+  b.c0 = (cam.R_cl_d * b.c0_local + cam.t_cl_d).cast<float>();
+  b.ax = cam.R_cl.col(0) * static_cast<float>(vs);
+  b.ay = cam.R_cl.col(1) * static_cast<float>(vs);
+  b.az = cam.R_cl.col(2) * static_cast<float>(vs);
+  return b;
+}
+
+RowKernel rowKernel(const Camera& cam, const DepthUpdateParams& prm, const Eigen::Vector3f& ax) {
+  const FrameMeasurements& fm = *prm.fm;
+  const float fx = cam.fx, fy = cam.fy;
+  // Pixels per metre of lateral distance at unit depth (the smaller focal length: the lateral
+  // distance is never overestimated).
+  const float edge_scale = std::min(fx, fy);
+  RowKernel k{};
+  k.pixels = fm.pixels.data();
+  k.guard = fm.guard.data();
+  k.edge_dist = fm.edge_dist.data();
+  k.silhouette_dist = fm.silhouette_dist.data();
+  k.in_band = prm.in_band;
+  k.W = cam.width;
+  k.H = cam.height;
+  k.tiles_x = fm.tiles_x;
+  k.ax_x = ax.x();
+  k.ax_y = ax.y();
+  k.ax_z = ax.z();
+  k.fx = fx;
+  k.fy = fy;
+  k.cx = cam.cx;
+  k.cy = cam.cy;
+  k.inv_fx = 1.0f / fx;
+  k.inv_fy = 1.0f / fy;
+  k.z_min = cam.z_min;
+  k.z_max = cam.z_max;
+  k.w_lim = cam.width - 0.5f;
+  k.h_lim = cam.height - 0.5f;
+  k.trunc = prm.trunc;
+  k.behind = kBehindFraction * prm.trunc;
+  k.guard_sdf = kGuardSdf * prm.voxel;
+  k.edge_scale = edge_scale;
+  k.depth_scale = fm.depth_scale;
+  k.max_weight = prm.max_weight;
+  k.guard_behind = prm.guard_behind;
+  k.guard_near = true;
+  return k;
+}
+
+/// Slice z of the block holds band voxels.
+bool sliceInBand(const BlockInCamera& b, const DepthUpdateParams& prm, int z) {
+  const float h = static_cast<float>(b.c0_local.z() + z * static_cast<double>(prm.voxel));
+  return h >= prm.band.vox_lo && h <= prm.band.vox_hi;
+}
+
+/// The first band slice's rows (one cache line each), requested before the work on the block.
+void prefetchFirstBandSlice(const TsdfBlock& blk, const BlockInCamera& b,
+                            const DepthUpdateParams& prm) {
+  int z0 = 0;
+  while (z0 < kTsdfBlockSide && !sliceInBand(b, prm, z0)) ++z0;
+  if (z0 < kTsdfBlockSide)
+    for (int y = 0; y < kTsdfBlockSide; ++y)
+      __builtin_prefetch(&blk.voxels[(z0 * kTsdfBlockSide + y) * kTsdfBlockSide], 1);
+}
+
+/// The pixels a block's voxel centres can project to (nearest pixel, inside the projected box of
+/// its corner centres) and its largest depth; `in_front` false when a corner is behind the
+/// camera (no bound then).
+struct ProjectedBox {
+  bool in_front = true;
+  float umin = kInf, umax = -kInf, vmin = kInf, vmax = -kInf, zmax = -kInf;
+
+  bool outsideImage(const RowKernel& k) const {
+    return umax < -0.5f || umin >= k.w_lim || vmax < -0.5f || vmin >= k.h_lim;
+  }
+};
+
+ProjectedBox projectedBox(const BlockInCamera& b, const RowKernel& k) {
+  ProjectedBox box;
+  const float e = static_cast<float>(kTsdfBlockSide - 1);
+  for (int i = 0; i < 8; ++i) {
+    const Eigen::Vector3f p = b.voxel((i & 1) ? e : 0.0f, (i & 2) ? e : 0.0f, (i & 4) ? e : 0.0f);
+    if (!(p.z() > 1e-3f)) {
+      box.in_front = false;
+      break;
+    }
+    const float u = k.fx * p.x() / p.z() + k.cx, v = k.fy * p.y() / p.z() + k.cy;
+    box.umin = std::min(box.umin, u);
+    box.umax = std::max(box.umax, u);
+    box.vmin = std::min(box.vmin, v);
+    box.vmax = std::max(box.vmax, v);
+    box.zmax = std::max(box.zmax, p.z());
+  }
+  return box;
+}
+
+/// The nearest pixel of coordinate x, clamped to [0, n).
+int nearestPixel(float x, int n) {
+  return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
+}
+
+/// Occlusion bound. Over the pixels of `box`, the largest measured depth dmax: a voxel deeper
+/// than dmax + trunc + the tangent-plane term (|n'| * the voxel's lateral offset from its pixel's
+/// ray, at most kTangentSlackPx pixel footprints) has q < -trunc, untouched. Returns that depth;
+/// sets k.guard_near to whether the silhouette guard can act on the block.
+float occlusionBound(const ProjectedBox& box, const FrameMeasurements& fm, RowKernel& k) {
+  const int tx0 = nearestPixel(box.umin, k.W) >> kGuardTileShift;
+  const int tx1 = nearestPixel(box.umax, k.W) >> kGuardTileShift;
+  const int ty0 = nearestPixel(box.vmin, k.H) >> kGuardTileShift;
+  const int ty1 = nearestPixel(box.vmax, k.H) >> kGuardTileShift;
+  float dmax = -kInf, gmin = kInf;
+  for (int ty = ty0; ty <= ty1; ++ty)
+    for (int tx = tx0; tx <= tx1; ++tx) {
+      const std::size_t t = static_cast<std::size_t>(ty) * fm.tiles_x + tx;
+      dmax = std::max(dmax, fm.tile_max_depth[t]);
+      gmin = std::min(gmin, fm.guard[t]);
+    }
+  // The guard acts where its tile's edge depth <= zc + trunc; zc <= zmax (plus rounding).
+  k.guard_near = gmin <= box.zmax + k.trunc + 1e-3f;
+  return dmax + k.trunc + kTangentSlackPx * box.zmax / k.edge_scale + 1e-3f;
+}
+
+/// The measurements the voxel loop will gather, requested ahead (one cache line = 8 px).
+void prefetchPixels(const ProjectedBox& box, const RowKernel& k) {
+  const int u0 = nearestPixel(box.umin, k.W), u1 = nearestPixel(box.umax, k.W);
+  for (int v = nearestPixel(box.vmin, k.H); v <= nearestPixel(box.vmax, k.H); ++v)
+    for (int u = u0; u <= u1 + 7; u += 8)
+      __builtin_prefetch(k.pixels + static_cast<std::size_t>(v) * k.W + std::min(u, u1));
+}
+
+/// True when a voxel centre of slice z projects into the image within the depth range.
+bool sliceInView(const BlockInCamera& b, const RowKernel& k, int z) {
+  for (int y = 0; y < kTsdfBlockSide; ++y)
+    for (int x = 0; x < kTsdfBlockSide; ++x) {
+      const Eigen::Vector3f p =
+          b.voxel(static_cast<float>(x), static_cast<float>(y), static_cast<float>(z));
+      if (!(p.z() >= k.z_min && p.z() <= k.z_max)) continue;
+      const float uf = k.fx * p.x() / p.z() + k.cx, vf = k.fy * p.y() / p.z() + k.cy;
+      if (uf >= -0.5f && uf < k.w_lim && vf >= -0.5f && vf < k.h_lim) return true;
+    }
+  return false;
+}
+
+/// Fuses slice z of the block (its rows along the block's x axis).
+void fuseSlice(TsdfBlock& blk, const BlockInCamera& b, const RowKernel& k,
+               [[maybe_unused]] bool simd, int z, BlockOutcome& out) {
+  const float fz = static_cast<float>(z);
+  const float sx = b.c0.x() + fz * b.az.x(), sy = b.c0.y() + fz * b.az.y();
+  const float sz = b.c0.z() + fz * b.az.z();
+  TsdfVoxel* slice = &blk.voxels[z * kTsdfBlockSide * kTsdfBlockSide];
+#if PLANESDF_AVX2_KERNEL
+  if (simd) {
+    fuseSliceAvx2(k, sx, sy, sz, b.ay.x(), b.ay.y(), b.ay.z(), slice, out);
+    return;
+  }
+#endif
+  for (int y = 0; y < kTsdfBlockSide; ++y) {
+    const float fyy = static_cast<float>(y);
+    fuseRowScalar(k, sx + fyy * b.ay.x(), sy + fyy * b.ay.y(), sz + fyy * b.ay.z(),
+                  slice + y * kTsdfBlockSide, out);
+  }
+}
+
 }  // namespace
 
 /// Pass 2 for one block (integer index `index`, from the volume's index array: reading
 /// blk.index would miss the cache on the line after the voxels): projects its voxel centres
-/// (memory order) and fuses them.
+/// (memory order) and fuses them. Slices of the block beyond the occlusion bound are skipped
+/// whole (the result is identical).
 BlockOutcome updateBlockFromDepth(TsdfBlock& blk, const Eigen::Vector3i& index, const Camera& cam,
                                   const FrustumCull& cull, const DepthUpdateParams& prm) {
   BlockOutcome out;
-  const double vs = prm.voxel;
-  const Eigen::Vector3d c0_local = (index.cast<double>() * kTsdfBlockSide).array() * vs + 0.5 * vs;
-  const Eigen::Vector3f c0 = (cam.R_cl_d * c0_local + cam.t_cl_d).cast<float>();
-  const Eigen::Vector3f ax = cam.R_cl.col(0) * prm.voxel;
-  const Eigen::Vector3f ay = cam.R_cl.col(1) * prm.voxel;
-  const Eigen::Vector3f az = cam.R_cl.col(2) * prm.voxel;
+  const BlockInCamera b = blockInCamera(index, cam, prm.voxel);
   const float half = 0.5f * (kTsdfBlockSide - 1);
   const float radius = std::sqrt(3.0f) * half * prm.voxel * 1.0001f + 1e-6f;
-  if (!cull.mayIntersect(c0 + half * (ax + ay + az), radius)) return out;
+  if (!cull.mayIntersect(b.c0 + half * (b.ax + b.ay + b.az), radius)) return out;
 
-  const float w_lim = cam.width - 0.5f, h_lim = cam.height - 0.5f;
-  const int W = cam.width, H = cam.height;
-  const FrameMeasurements& fm = *prm.fm;
-  const float fx = cam.fx, fy = cam.fy, cx = cam.cx, cy = cam.cy;
-  const float trunc = prm.trunc;
-  // Pixels per metre of lateral distance at unit depth (the smaller focal length: the lateral
-  // distance is never overestimated).
-  const float edge_scale = std::min(fx, fy);
-  RowKernel kernel{fm.pixels.data(),
-                   fm.guard.data(),
-                   fm.edge_dist.data(),
-                   fm.silhouette_dist.data(),
-                   prm.in_band,
-                   W,
-                   H,
-                   fm.tiles_x,
-                   ax.x(),
-                   ax.y(),
-                   ax.z(),
-                   fx,
-                   fy,
-                   cx,
-                   cy,
-                   1.0f / fx,
-                   1.0f / fy,
-                   cam.z_min,
-                   cam.z_max,
-                   w_lim,
-                   h_lim,
-                   trunc,
-                   kBehindFraction * trunc,
-                   kGuardSdf * prm.voxel,
-                   edge_scale,
-                   fm.depth_scale,
-                   prm.max_weight,
-                   prm.guard_behind};
-
-  // Occlusion bound. Over the pixels the block's voxel centres can project to (nearest pixel,
-  // inside the projected box of its corner centres), the largest measured depth dmax. A voxel
-  // deeper than dmax + trunc + the tangent-plane term (|n'| * the voxel's lateral offset from its
-  // pixel's ray, at most kTangentSlackPx pixel footprints) has q < -trunc: untouched. Slices of
-  // the block beyond that are skipped whole (the result is identical).
-  const float near_dz = (kTsdfBlockSide - 1) * (std::min(0.0f, ax.z()) + std::min(0.0f, ay.z()));
+  RowKernel kernel = rowKernel(cam, prm, b.ax);
+  prefetchFirstBandSlice(blk, b, prm);
+  // Slice z lies wholly beyond the occlusion bound: its nearest voxel is deeper.
+  const float near_dz =
+      (kTsdfBlockSide - 1) * (std::min(0.0f, b.ax.z()) + std::min(0.0f, b.ay.z()));
   float occluded_from = kInf;
-  // Slice z of the block holds band voxels / lies wholly beyond the occlusion bound.
-  const auto sliceInBand = [&](int z) {
-    const float h = static_cast<float>(c0_local.z() + z * vs);
-    return h >= prm.band.vox_lo && h <= prm.band.vox_hi;
-  };
-  {  // the first band slice's rows (one cache line each) are requested before the work below
-    int z0 = 0;
-    while (z0 < kTsdfBlockSide && !sliceInBand(z0)) ++z0;
-    if (z0 < kTsdfBlockSide)
-      for (int y = 0; y < kTsdfBlockSide; ++y)
-        __builtin_prefetch(&blk.voxels[(z0 * kTsdfBlockSide + y) * kTsdfBlockSide], 1);
-  }
   const auto sliceOccluded = [&](int z) {
-    return c0.z() + static_cast<float>(z) * az.z() + near_dz > occluded_from;
+    return b.c0.z() + static_cast<float>(z) * b.az.z() + near_dz > occluded_from;
   };
-  {
-    const float e = static_cast<float>(kTsdfBlockSide - 1);
-    float umin = kInf, umax = -kInf, vmin = kInf, vmax = -kInf, zmax = -kInf;
-    bool in_front = true;
-    for (int i = 0; i < 8; ++i) {
-      const Eigen::Vector3f p =
-          c0 + ((i & 1) ? e : 0.0f) * ax + ((i & 2) ? e : 0.0f) * ay + ((i & 4) ? e : 0.0f) * az;
-      if (!(p.z() > 1e-3f)) {
-        in_front = false;
-        break;
-      }
-      const float u = fx * p.x() / p.z() + cx, v = fy * p.y() / p.z() + cy;
-      umin = std::min(umin, u);
-      umax = std::max(umax, u);
-      vmin = std::min(vmin, v);
-      vmax = std::max(vmax, v);
-      zmax = std::max(zmax, p.z());
-    }
-    if (in_front) {
-      if (umax < -0.5f || umin >= w_lim || vmax < -0.5f || vmin >= h_lim) return out;
-      const auto pixel = [](float x, int n) {
-        return static_cast<int>(std::clamp(x + 0.5f, 0.0f, static_cast<float>(n - 1)));
-      };
-      const int tx0 = pixel(umin, W) >> kGuardTileShift, tx1 = pixel(umax, W) >> kGuardTileShift;
-      const int ty0 = pixel(vmin, H) >> kGuardTileShift, ty1 = pixel(vmax, H) >> kGuardTileShift;
-      float dmax = -kInf, gmin = kInf;
-      for (int ty = ty0; ty <= ty1; ++ty)
-        for (int tx = tx0; tx <= tx1; ++tx) {
-          const std::size_t t = static_cast<std::size_t>(ty) * fm.tiles_x + tx;
-          dmax = std::max(dmax, fm.tile_max_depth[t]);
-          gmin = std::min(gmin, fm.guard[t]);
-        }
-      // The guard acts where its tile's edge depth <= zc + trunc; zc <= zmax (plus rounding).
-      kernel.guard_near = gmin <= zmax + trunc + 1e-3f;
-      occluded_from = dmax + trunc + kTangentSlackPx * zmax / edge_scale + 1e-3f;
-      // The measurements the voxel loop will gather, requested ahead (one cache line = 8 px),
-      // unless every slice of the block is occluded (see below).
-      bool any_slice = false;
-      for (int z = 0; z < kTsdfBlockSide && !any_slice; ++z)
-        any_slice = sliceInBand(z) && !sliceOccluded(z);
-      if (any_slice) {
-        const int u0 = pixel(umin, W), u1 = pixel(umax, W);
-        for (int v = pixel(vmin, H); v <= pixel(vmax, H); ++v)
-          for (int u = u0; u <= u1 + 7; u += 8)
-            __builtin_prefetch(fm.pixels.data() + static_cast<std::size_t>(v) * W +
-                               std::min(u, u1));
-      }
-    }
+  const ProjectedBox box = projectedBox(b, kernel);
+  if (box.in_front) {
+    if (box.outsideImage(kernel)) return out;
+    occluded_from = occlusionBound(box, *prm.fm, kernel);
+    bool any_slice = false;  // unless every slice of the block is occluded
+    for (int z = 0; z < kTsdfBlockSide && !any_slice; ++z)
+      any_slice = sliceInBand(b, prm, z) && !sliceOccluded(z);
+    if (any_slice) prefetchPixels(box, kernel);
   }
-  // True when a voxel centre of slice z projects into the image within the depth range.
-  const auto sliceInView = [&](int z) {
-    for (int y = 0; y < kTsdfBlockSide; ++y)
-      for (int x = 0; x < kTsdfBlockSide; ++x) {
-        const Eigen::Vector3f p = c0 + static_cast<float>(x) * ax + static_cast<float>(y) * ay +
-                                  static_cast<float>(z) * az;
-        if (!(p.z() >= cam.z_min && p.z() <= cam.z_max)) continue;
-        const float uf = fx * p.x() / p.z() + cx, vf = fy * p.y() / p.z() + cy;
-        if (uf >= -0.5f && uf < w_lim && vf >= -0.5f && vf < h_lim) return true;
-      }
-    return false;
-  };
-
   for (int z = 0; z < kTsdfBlockSide; ++z) {
-    if (!sliceInBand(z)) continue;
+    if (!sliceInBand(b, prm, z)) continue;
     if (sliceOccluded(z)) {
-      if (!out.in_view) out.in_view = sliceInView(z);
+      if (!out.in_view) out.in_view = sliceInView(b, kernel, z);
       continue;
     }
-    const float fz = static_cast<float>(z);
-    const float sx = c0.x() + fz * az.x(), sy = c0.y() + fz * az.y(), sz = c0.z() + fz * az.z();
-    TsdfVoxel* slice = &blk.voxels[z * kTsdfBlockSide * kTsdfBlockSide];
-#if PLANESDF_AVX2_KERNEL
-    if (prm.simd) {
-      fuseSliceAvx2(kernel, sx, sy, sz, ay.x(), ay.y(), ay.z(), slice, out);
-      continue;
-    }
-#endif
-    for (int y = 0; y < kTsdfBlockSide; ++y) {
-      const float fyy = static_cast<float>(y);
-      fuseRowScalar(kernel, sx + fyy * ay.x(), sy + fyy * ay.y(), sz + fyy * ay.z(),
-                    slice + y * kTsdfBlockSide, out);
-    }
+    fuseSlice(blk, b, kernel, prm.simd, z, out);
   }
   return out;
 }
