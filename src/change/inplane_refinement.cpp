@@ -599,6 +599,21 @@ class GridSearch {
   const Config& cfg_;
 };
 
+/// The best candidate near the initial T against the best elsewhere: near wins when it is no
+/// worse, and for the session's drift also when it is not clearly worse (the far one's capped
+/// cost lower by less than kMinGainSigmas standard deviations of near's, a Poisson count). A
+/// rotation about a far point can drag one moved object onto its new place while the objects near
+/// that point stay put; on a table of small objects that fits a few cells better than the drift
+/// (design.md, "The session's drift prefers the smaller motion").
+bool nearWins(const std::pair<Cand, Score>& near, const std::pair<Cand, Score>& far,
+              bool session_drift) {
+  if (better(near.second, far.second) ||
+      (!better(far.second, near.second) && near.first.motion() < far.first.motion()))
+    return true;
+  return session_drift &&
+         near.second.cost - far.second.cost < kMinGainSigmas * std::sqrt(near.second.cost);
+}
+
 /// Coarse: 2-cell and 1-degree steps over the whole window on at most kCoarseSamples samples;
 /// fine: 1-cell and yaw_step steps within 2 coarse steps of the coarse best, on all samples.
 /// Returns the fine best and its score. Reorders `set.samples` (sensitiveFirst).
@@ -631,9 +646,7 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
   std::pair<Cand, Score> fine = grids.best(placed, groups, coarse, fine_grid);
   if (coarse.du != 0.0 || coarse.dv != 0.0 || coarse.yaw_deg != 0.0) {
     const std::pair<Cand, Score> near = grids.best(placed, groups, Cand{}, fine_grid);
-    if (better(near.second, fine.second) ||
-        (!better(fine.second, near.second) && near.first.motion() < fine.first.motion()))
-      fine = near;
+    if (nearWins(near, fine, search.session_drift)) fine = near;
   }
   return fine;
 }
