@@ -65,19 +65,6 @@ struct IntegrateStats {
 };
 
 namespace detail {
-/// Heights n . p + d in [lo, hi] (a plane's band), in single precision for bandPretest.
-struct BandF {
-  float nx, ny, nz, d, lo, hi;
-};
-
-/// The pre-test of Map's kept points: maybe[i] = 1 when point i of `xyz` (m packed x y z
-/// points) may lie in some band, else 0 (also for NaN points). Its margin, 1 mm plus 4e-7 of
-/// the magnitudes of the coordinates and of d, is several times the rounding error of the
-/// single-precision height, so a point whose exact height (double) is inside a band is never
-/// given 0. 8 points at a time with AVX2 when `simd` and the CPU has it.
-void bandPretest(const float* xyz, int m, const std::vector<BandF>& bands, std::uint8_t* maybe,
-                 bool simd = true);
-
 /// A set of grid cells keyed as detail::cellKeyOf packs them (21 bits per axis): bricks of 8^3
 /// cells in a hash map, each a 512-bit mask. Neighbouring cells share a brick, so a frame's
 /// points look up a small table (and mostly the brick of the point before) instead of one large

@@ -18,6 +18,7 @@
 #include <tuple>
 #include <utility>
 
+#include "../map/map_internal.hpp"
 #include "../numeric.hpp"
 #include "../parallel.hpp"
 #include "band_filter.hpp"

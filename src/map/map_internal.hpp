@@ -5,11 +5,25 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 #include "planesdf/map.hpp"
 #include "planesdf/tsdf.hpp"
 
 namespace planesdf::detail {
+
+/// Heights n . p + d in [lo, hi] (a plane's band), in single precision for bandPretest.
+struct BandF {
+  float nx, ny, nz, d, lo, hi;
+};
+
+/// The pre-test of Map's kept points: maybe[i] = 1 when point i of `xyz` (m packed x y z
+/// points) may lie in some band, else 0 (also for NaN points). Its margin, 1 mm plus 4e-7 of
+/// the magnitudes of the coordinates and of d, is several times the rounding error of the
+/// single-precision height, so a point whose exact height (double) is inside a band is never
+/// given 0. 8 points at a time with AVX2 when `simd` and the CPU has it.
+void bandPretest(const float* xyz, int m, const std::vector<BandF>& bands, std::uint8_t* maybe,
+                 bool simd = true);
 
 /// Key of the cube of side `cell` holding `p` (21 bits per axis, wraps beyond ±7 km at 3.5 mm).
 /// Defined for every coordinate: cell indices beyond ±2^40 (and NaN) are clamped before the
