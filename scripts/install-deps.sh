@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages planesdf builds against (clang-14, its runtime with libFuzzer
-# and its OpenMP for the fuzz targets of scripts/run-fuzz.sh). Idempotent: when every package is
+# Installs the Debian 12 packages planesdf builds against (clang-14 and its runtime with
+# libFuzzer for the fuzz targets of scripts/run-fuzz.sh). Idempotent: when every package is
 # already present it only runs dpkg-query and exits in well under a second.
 set -euo pipefail
 
@@ -14,7 +14,7 @@ PKGS=(
   libgtest-dev libgmock-dev libbenchmark-dev
   nlohmann-json3-dev libcli11-dev
   liblzf-dev
-  clang-14 libclang-rt-14-dev libomp-14-dev
+  clang-14 libclang-rt-14-dev
 )
 
 missing=()

@@ -2,7 +2,12 @@
 // simulated tabletop sequence (PlaneSDF integrate per frame, the same frames into an OctoMap
 // OcTree, one detectChanges), and `planesdf bench --suite DIR`: the paper-style comparison of
 // issue 5 (PlaneSDF, point-distance and OctoMap differencing on simulated and mOSD pairs).
+#include <sys/prctl.h>
 #include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <csignal>
 
 #include <nlohmann/json.hpp>
 
@@ -93,12 +98,13 @@ struct RoomFigures {
 constexpr unsigned kBenchRoomSeed = 1;
 constexpr int kRoomDetectRuns = 3;
 
-RoomFigures roomBench(int max_frames) {
+RoomFigures roomBench(int max_frames, int threads) {
   const sim::Scene scene = sim::makePreset("room", kBenchRoomSeed);
   std::cerr << "bench: room preset, seed " << kBenchRoomSeed << "\n";
   const Sequence ref = renderSession(scene, scene.reference, 0, max_frames, "room reference");
   const Sequence cur = renderSession(scene, scene.current, 1, max_frames, "room current");
   Config cfg;
+  cfg.threads = threads;
   Map reference(cfg), current(cfg);
   std::vector<double> integrate_ms;
   for (const auto& [seq, map] : {std::pair<const Sequence*, Map*>{&ref, &reference},
@@ -302,20 +308,53 @@ void printBench(const json& j, const TabletopFigures& t, const OctomapFigures& o
               j["peak_rss_mb"].get<double>());
 }
 
+/// `--load N`: N processes that each keep a core busy while the benchmark runs, as a host's
+/// other work does. Processes, not threads, so the CPU time figures stay planesdf's own; each
+/// dies with the benchmark (PR_SET_PDEATHSIG) or when this is destroyed.
+class BusyLoad {
+ public:
+  explicit BusyLoad(int n) {
+    for (int k = 0; k < n; ++k) {
+      const pid_t pid = fork();
+      if (pid < 0) throw Error("--load", "cannot start a busy process");
+      if (pid == 0) spin();
+      pids_.push_back(pid);
+    }
+  }
+  BusyLoad(const BusyLoad&) = delete;
+  BusyLoad& operator=(const BusyLoad&) = delete;
+  ~BusyLoad() {
+    for (const pid_t pid : pids_) kill(pid, SIGKILL);
+    for (const pid_t pid : pids_) waitpid(pid, nullptr, 0);
+  }
+
+ private:
+  [[noreturn]] static void spin() {
+    prctl(PR_SET_PDEATHSIG, SIGKILL);
+    volatile double x = 1.0;
+    for (;;) x = x * 1.0000001 + 1e-9;
+  }
+  std::vector<pid_t> pids_;
+};
+
 int runSingleBench(const BenchArgs& args) {
   const sim::Scene scene = sim::makePreset("tabletop", kBenchSeed);
+  Config cfg;
+  cfg.threads = args.threads;
   std::cerr << "bench: tabletop preset, seed " << kBenchSeed << ", 640x480 frames, voxel "
-            << Config{}.voxel_size * 1000 << " mm\n";
-  const Config cfg;
+            << cfg.voxel_size * 1000 << " mm, threads " << cfg.threads << ", load " << args.load
+            << "\n";
   const Sequence ref = renderSession(scene, scene.reference, 0, args.frames, "reference");
   const Sequence cur = renderSession(scene, scene.current, 1, args.frames, "current");
+  const BusyLoad load(args.load);
   const TabletopFigures tabletop = tabletopBench(ref, cur, cfg, args.reserve_mb);
   const OctomapFigures octomap = octomapBench(ref, cfg);
   const double peak_rss_mb = peakRssMb();
   // The room pair last, with the tabletop maps freed: its maps are larger than everything above.
-  const RoomFigures room = roomBench(args.frames);
-  const json j = benchJson(scene, ref.frames.size(), cfg, args.reserve_mb, peak_rss_mb, tabletop,
-                           octomap, room);
+  const RoomFigures room = roomBench(args.frames, cfg.threads);
+  json j = benchJson(scene, ref.frames.size(), cfg, args.reserve_mb, peak_rss_mb, tabletop, octomap,
+                     room);
+  j["load"] = args.load;
   printBench(j, tabletop, octomap, room);
   if (!args.json.empty()) {
     writeText(args.json, j.dump(2) + "\n");

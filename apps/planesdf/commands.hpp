@@ -94,6 +94,8 @@ struct BenchArgs {
   std::string mosd_dir;    ///< suite: folder with pairs.tsv
   int octomap_stride = 8;  ///< suite: pixel stride of simulated frames into OctoMap
   int reserve_mb = 128;    ///< block memory each tabletop map reserves before fusing (MiB)
+  int threads = 0;         ///< Config::threads of the benchmark (0: every CPU)
+  int load = 0;            ///< busy processes beside the benchmark (a host's other work)
   bool stream = false;     ///< --stream: the incremental detector on simulated streams
   /// stream: the presets and seeds to run, "PRESET:SEED"
   std::vector<std::string> stream_runs = {"tabletop:7", "room:11"};

@@ -153,6 +153,13 @@ CLI::App* addBench(CLI::App& app, BenchArgs& a) {
                   "(Map::reserveMemory; 0: none)")
       ->capture_default_str()
       ->check(CLI::Range(0, 65536));
+  cmd->add_option("--threads", a.threads, "Threads of the pipeline (0: every CPU)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, planesdf::kMaxThreads));
+  cmd->add_option("--load", a.load,
+                  "Busy processes that compete for the CPU while the benchmark runs")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 64));
   addBenchModes(cmd, a);
   return cmd;
 }

@@ -10,8 +10,8 @@
 
 namespace planesdf {
 
-/// Largest Config::threads accepted: an OpenMP team is created per parallel stage, and a huge
-/// one exhausts memory before it starts (validateConfig refuses more).
+/// Largest Config::threads accepted: a parallel stage starts up to that many worker threads, and
+/// a huge count exhausts memory before it starts (validateConfig refuses more).
 inline constexpr int kMaxThreads = 1024;
 
 /// Largest Config::memory_limit_mb accepted (16 TB).
@@ -120,7 +120,8 @@ struct Config {
   double surface_max_depth = 3.0;
   double min_depth = 0.2;     ///< m
   float max_weight = 100.0f;  ///< weight cap per voxel
-  /// Threads of every parallel stage; 0 = hardware concurrency; at most kMaxThreads.
+  /// Threads of every parallel stage, the calling thread included; 0 = every CPU the process may
+  /// run on. Idle workers block, never spin (docs/design.md, "Threads"). At most kMaxThreads.
   int threads = 0;
   /// Memory budget (MB) of the large arrays: a depth frame's buffers, the TSDF blocks a frame or
   /// cloud adds to a map, a height map and the grids derived from it are estimated before they

@@ -4,8 +4,6 @@
 
 #include "planesdf/validation.hpp"
 
-#include <omp.h>
-
 #include <Eigen/Eigenvalues>
 
 #include <algorithm>
@@ -19,6 +17,7 @@
 #include <vector>
 
 #include "../numeric.hpp"
+#include "../parallel.hpp"
 #include "planesdf/error.hpp"
 
 namespace planesdf {
@@ -36,10 +35,6 @@ using detail::kPi;
 constexpr double kS2[5] = {1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16};
 constexpr double kD1[5] = {-1.0 / 8, -2.0 / 8, 0.0, 2.0 / 8, 1.0 / 8};
 constexpr double kD2[5] = {1.0 / 4, 0.0, -2.0 / 4, 0.0, 1.0 / 4};
-
-int resolveThreads(int requested) {
-  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
-}
 
 void checkConfig(const Config& cfg) {
   featureSize(cfg);  // validates the bin counts
@@ -585,9 +580,7 @@ BlobValidation validateBlob(const TsdfVolume& source, const TsdfVolume& target,
   const Eigen::Matrix3d R_source_target = T_target_source.linear().transpose();
 
   const int n = static_cast<int>(keys.size());
-  const int threads = resolveThreads(cfg.threads);
-#pragma omp parallel for num_threads(threads) if (threads > 1 && n > 1) schedule(dynamic, 4)
-  for (int k = 0; k < n; ++k) {
+  const auto scoreKey = [&](int k) {
     KeyVoxelScore& score = out.keys[static_cast<std::size_t>(k)];
     const KeyVoxel& key = keys[static_cast<std::size_t>(k)];
     score.voxel = key.voxel;
@@ -597,14 +590,18 @@ BlobValidation validateBlob(const TsdfVolume& source, const TsdfVolume& target,
     const HessianPatch sp = patchAround(source, key.voxel, kFeatureMargin, cfg.w_min);
     const std::optional<VoxelFeature> f = featureInPatch(
         sp, key.voxel, nullptr, source.truncation(), Eigen::Matrix3d::Identity(), cfg, params);
-    if (!f) continue;  // cannot happen for a key voxel; kept for safety
+    if (!f) return;  // cannot happen for a key voxel; kept for safety
     const HessianPatch tp = patchAround(target, score.target_voxel, kFeatureMargin, cfg.w_min);
     const std::optional<VoxelFeature> g = featureInPatch(
         tp, score.target_voxel, &f->ranges, target.truncation(), R_source_target, cfg, params);
-    if (!g) continue;
+    if (!g) return;
     score.scored = true;
     score.similarity = similarity(f->values, g->values, cfg.alpha);
-  }
+  };
+  detail::parallelChunks(n, detail::resolveThreads(cfg.threads), 4,
+                         [&](int, long long begin, long long end) {
+                           for (long long k = begin; k < end; ++k) scoreKey(static_cast<int>(k));
+                         });
 
   double sum = 0.0;
   for (const KeyVoxelScore& s : out.keys)

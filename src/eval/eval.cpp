@@ -14,6 +14,7 @@
 #include <utility>
 #include <vector>
 
+#include "../parallel.hpp"
 #include "planesdf/error.hpp"
 
 namespace planesdf {
@@ -228,7 +229,7 @@ void matchCell(const CellGrid& query, std::size_t qcell, const CellGrid& target,
   }
 }
 
-// Below this many query cells the OpenMP team costs more than it saves.
+// Below this many query cells the worker threads cost more than they save.
 constexpr std::size_t kMinParallelCells = 1024;
 
 // matched_a[i] = 1 for every point i of `a` with a point of `b` within sqrt(tol2), and the same
@@ -241,17 +242,24 @@ void markMatched(const CellGrid& a, const CellGrid& b, double tol2,
   std::vector<std::uint8_t> hit_b(b.end(b.cellCount() - 1), 0);
   const long long cells_a = static_cast<long long>(a.cellCount());
   const long long cells_b = static_cast<long long>(b.cellCount());
-#pragma omp parallel if (a.cellCount() + b.cellCount() >= kMinParallelCells)
-  {
-    std::vector<std::uint32_t> pending;  // scratch of matchCell
-    std::vector<std::uint32_t> near;
-#pragma omp for schedule(dynamic, 256) nowait
-    for (long long c = 0; c < cells_a; ++c)
-      matchCell(a, static_cast<std::size_t>(c), b, tol2, hit_a, pending, near);
-#pragma omp for schedule(dynamic, 256)
-    for (long long c = 0; c < cells_b; ++c)
-      matchCell(b, static_cast<std::size_t>(c), a, tol2, hit_b, pending, near);
-  }
+  const int threads = cells_a + cells_b >= static_cast<long long>(kMinParallelCells)
+                          ? detail::resolveThreads(0)
+                          : 1;
+  struct Scratch {  // of matchCell
+    std::vector<std::uint32_t> pending, near;
+  };
+  std::vector<Scratch> scratch(static_cast<std::size_t>(threads));
+  // The cells of a, then those of b.
+  detail::parallelChunks(
+      cells_a + cells_b, threads, 256, [&](int worker, long long begin, long long end) {
+        Scratch& s = scratch[static_cast<std::size_t>(worker)];
+        for (long long c = begin; c < end; ++c) {
+          if (c < cells_a)
+            matchCell(a, static_cast<std::size_t>(c), b, tol2, hit_a, s.pending, s.near);
+          else
+            matchCell(b, static_cast<std::size_t>(c - cells_a), a, tol2, hit_b, s.pending, s.near);
+        }
+      });
   for (std::size_t k = 0; k < hit_a.size(); ++k)
     if (hit_a[k]) matched_a[a.original(static_cast<std::uint32_t>(k))] = 1;
   for (std::size_t k = 0; k < hit_b.size(); ++k)

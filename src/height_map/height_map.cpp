@@ -4,10 +4,9 @@
 #include "planesdf/height_map.hpp"
 
 #include "../numeric.hpp"
+#include "../parallel.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/memory.hpp"
-
-#include <omp.h>
 
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
@@ -23,10 +22,6 @@
 
 namespace planesdf {
 namespace {
-
-int resolveThreads(int requested) {
-  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
-}
 
 /// The allocated blocks of one (bx, by) block column, highest first, with their block z.
 using BlockColumn = std::vector<std::pair<int, const TsdfBlock*>>;
@@ -282,11 +277,9 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
   const int num_columns = static_cast<int>(columns.size());
   const float vs = static_cast<float>(vol.voxelSize());
   const bool avx2 = cfg.simd && detail::cpuHasAvx2();
-#pragma omp parallel for num_threads(resolveThreads(cfg.threads)) \
-    schedule(dynamic, 16) if (num_columns >= 64)
-  for (int c = 0; c < num_columns; ++c) {
+  const auto fillColumn = [&](int c) {
     const BlockColumn& col = columns[static_cast<std::size_t>(c)];
-    if (col.empty()) continue;
+    if (col.empty()) return;
     std::array<float, kColumnsPerBlock> values;
     std::array<std::uint8_t, kColumnsPerBlock> unseen;
     blockColumnHeights(col, vs, cfg.w_min, static_cast<float>(cfg.h_obj), avx2, values.data(),
@@ -298,7 +291,12 @@ HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
       std::copy_n(unseen.begin() + ly * kTsdfBlockSide, kTsdfBlockSide,
                   &hm.unseen_above[hm.index(x0, y0 + ly)]);
     }
-  }
+  };
+  // Small maps (under 64 block columns) on the calling thread.
+  const int threads = num_columns >= 64 ? detail::resolveThreads(cfg.threads) : 1;
+  detail::parallelChunks(num_columns, threads, 16, [&](int, long long begin, long long end) {
+    for (long long c = begin; c < end; ++c) fillColumn(static_cast<int>(c));
+  });
   return hm;
 }
 

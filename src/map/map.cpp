@@ -1,7 +1,6 @@
 #include "planesdf/map.hpp"
 #include "planesdf/memory.hpp"
 
-#include <omp.h>
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <immintrin.h>
 #endif
@@ -13,6 +12,7 @@
 #include <functional>
 
 #include "../numeric.hpp"
+#include "../parallel.hpp"
 #include "map_internal.hpp"
 #include "planesdf/config_io.hpp"
 #include "planesdf/error.hpp"
@@ -28,11 +28,6 @@ double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
-/// cfg.threads, 0 meaning every core.
-int threadCount(const Config& cfg) {
-  return cfg.threads > 0 ? cfg.threads : std::max(1, omp_get_max_threads());
-}
-
 /// World points of a depth frame into `out`, one per pixel (NaN where the depth is invalid);
 /// rows in parallel. `out` is overwritten (reuse it across frames: no allocation per frame).
 void backProject(const DepthFrame& f, const Pose& camera_to_world, int threads,
@@ -44,16 +39,19 @@ void backProject(const DepthFrame& f, const Pose& camera_to_world, int threads,
   out.resize(f.depth.size());
   const float ifx = static_cast<float>(1.0 / k.fx), ify = static_cast<float>(1.0 / k.fy);
   const float cx = static_cast<float>(k.cx), cy = static_cast<float>(k.cy);
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static)
-  for (int v = 0; v < k.height; ++v)
-    for (int u = 0; u < k.width; ++u) {
-      const std::size_t i = static_cast<std::size_t>(v) * k.width + u;
-      const float d = f.depth[i];
-      out[i] =
-          DepthFrame::isValidDepth(d)
-              ? Eigen::Vector3f(R * Eigen::Vector3f((u - cx) * d * ifx, (v - cy) * d * ify, d) + t)
-              : nan;
-    }
+  detail::parallelChunks(k.height, threads, 16, [&](int, long long v0, long long v1) {
+    for (long long v = v0; v < v1; ++v)
+      for (int u = 0; u < k.width; ++u) {
+        const std::size_t i = static_cast<std::size_t>(v) * k.width + u;
+        const float d = f.depth[i];
+        out[i] =
+            DepthFrame::isValidDepth(d)
+                ? Eigen::Vector3f(R * Eigen::Vector3f((u - cx) * d * ifx,
+                                                      (static_cast<float>(v) - cy) * d * ify, d) +
+                                  t)
+                : nan;
+      }
+  });
 }
 
 /// Makes room for `needed` points in `v` (capacity doubling, as push_back grows). The new array
@@ -443,14 +441,19 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   // object threshold and inside its band (plane surfaces themselves never change).
   const double h_lo = 0.5 * cfg_.h_obj;
   const bool dedup = deduplicate && cfg_.point_cell > 0.0;
-  // The band test and the cell keys in parallel, each thread listing (index, key) of its
-  // contiguous share of the input in order (static schedule: concatenated in thread order, the
-  // lists are in input order); then the order-dependent de-duplication. Lists are reused.
+  // The band test and the cell keys in parallel, each part listing (index, key) of its
+  // contiguous share of the input in order (concatenated in part order, the lists are in input
+  // order); then the order-dependent de-duplication. Lists are reused.
   const auto n = static_cast<std::ptrdiff_t>(pts.size());
-  const int threads = threadCount(cfg_);
+  const int threads = detail::resolveThreads(cfg_.threads);
+  constexpr std::ptrdiff_t kChunk = 512;
+  const std::ptrdiff_t chunks = (n + kChunk - 1) / kChunk;
+  // A few parts per thread, so a thread the host's work delays holds back little.
+  const int parts =
+      static_cast<int>(std::max<std::ptrdiff_t>(1, std::min<std::ptrdiff_t>(chunks, 4 * threads)));
   thread_local std::vector<std::vector<std::pair<std::uint32_t, std::uint64_t>>> scratch;
-  auto& lists = scratch;  // the caller's (thread_local names the worker's own in the region)
-  lists.resize(static_cast<std::size_t>(threads));
+  auto& lists = scratch;
+  lists.resize(static_cast<std::size_t>(parts));
   for (auto& l : lists) l.clear();
   // A single-precision pre-test per chunk of points (bandPretest, 8 points at a time with
   // AVX2) marks the points that may be in some plane's band; only those take the exact test.
@@ -461,14 +464,12 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
     bands.push_back({nf.x(), nf.y(), nf.z(), static_cast<float>(ps.plane.offset),
                      static_cast<float>(h_lo), static_cast<float>(cfg_.fuse_band)});
   }
-  constexpr std::ptrdiff_t kChunk = 512;
-  const std::ptrdiff_t chunks = (n + kChunk - 1) / kChunk;
-#pragma omp parallel num_threads(threads) if (threads > 1)
-  {
-    auto& mine = lists[static_cast<std::size_t>(omp_get_thread_num())];
+  detail::parallelChunks(parts, threads, 1, [&](int, long long part, long long) {
+    auto& mine = lists[static_cast<std::size_t>(part)];
     alignas(64) std::uint8_t maybe[kChunk];
-#pragma omp for schedule(static)
-    for (std::ptrdiff_t c = 0; c < chunks; ++c) {
+    long long c0 = 0, c1 = 0;
+    detail::staticShare(chunks, parts, static_cast<int>(part), c0, c1);
+    for (std::ptrdiff_t c = c0; c < c1; ++c) {
       const std::ptrdiff_t begin = c * kChunk;
       const int m = static_cast<int>(std::min(kChunk, n - begin));
       const float* xyz = pts[static_cast<std::size_t>(begin)].data();
@@ -488,7 +489,7 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
         }
       }
     }
-  }
+  });
   if (!dedup) {
     std::size_t total = points_.size();
     for (const auto& list : lists) total += list.size();
@@ -508,11 +509,10 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   accepted.resize(lists.size());
   for (std::size_t l = 0; l < lists.size(); ++l) accepted[l].assign(lists[l].size(), 0);
   constexpr std::size_t kAhead = 16;
-  const int parts = std::min(threads, static_cast<int>(detail::kPointCellSets));
-#pragma omp parallel num_threads(parts) if (parts > 1)
-  {
-    const auto part = static_cast<std::size_t>(omp_get_thread_num());
-    const auto step = static_cast<std::size_t>(omp_get_num_threads());
+  const int owners = std::min(threads, static_cast<int>(detail::kPointCellSets));
+  detail::parallelChunks(owners, owners, 1, [&](int, long long owner, long long) {
+    const auto part = static_cast<std::size_t>(owner);
+    const auto step = static_cast<std::size_t>(owners);
     std::uint64_t last[detail::kPointCellSets];
     std::fill(std::begin(last), std::end(last), detail::kEmptyBlockKey);
     for (std::size_t l = 0; l < lists.size(); ++l) {
@@ -530,7 +530,7 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
         if (point_cells_[s].insert(key)) accepted[l][j] = 1;
       }
     }
-  }
+  });
   std::size_t total = points_.size();
   for (const auto& a : accepted)
     total += static_cast<std::size_t>(std::count(a.begin(), a.end(), 1));
@@ -562,7 +562,7 @@ IntegrateStats Map::integrate(const DepthFrame& frame, const Pose& camera_to_wor
                 "fusing a " + std::to_string(k.width) + "x" + std::to_string(k.height) + " frame");
   thread_local std::vector<Eigen::Vector3f> points_scratch;
   std::vector<Eigen::Vector3f>& pts = points_scratch;  // this thread's buffer, reused per frame
-  backProject(frame, camera_to_world, threadCount(cfg_), pts);
+  backProject(frame, camera_to_world, detail::resolveThreads(cfg_.threads), pts);
   const auto track = [&] {
     if (cfg_.track_pixel_stride <= 1) {
       tracker_.integrate(pts, camera_to_world.translation());  // every pixel: no copy

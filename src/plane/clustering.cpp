@@ -129,12 +129,13 @@ std::vector<std::vector<std::uint32_t>> assignToAxes(const std::vector<Eigen::Ve
   const double cos_lambda = std::cos(lambda_deg * kPi / 180.0);
   std::vector<int> label(indices.size(), -1);
   const long long n = static_cast<long long>(indices.size());
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (long long i = 0; i < n; ++i) {
-    double best = -1.0;
-    const int k = nearestAxis(axes, xyzData(normals) + 3 * indices[i], best);
-    if (k >= 0 && best >= cos_lambda) label[i] = k;
-  }
+  parallelChunks(n, threads, kPointGrain, [&](int, long long begin, long long end) {
+    for (long long i = begin; i < end; ++i) {
+      double best = -1.0;
+      const int k = nearestAxis(axes, xyzData(normals) + 3 * indices[i], best);
+      if (k >= 0 && best >= cos_lambda) label[i] = k;
+    }
+  });
   std::vector<std::vector<std::uint32_t>> groups(axes.size());
   for (std::size_t i = 0; i < indices.size(); ++i) {
     if (label[i] >= 0) groups[label[i]].push_back(indices[i]);

@@ -145,49 +145,49 @@ void forEachKnnAmong(const std::vector<Eigen::Vector3f>& points, int knn, int th
   const auto cells = static_cast<long long>(grid.cellCount());
   const float* xyz = detail::xyzData(points);
   const bool all = members.size() == indexed.size();
-#pragma omp parallel num_threads(threads)
-  {
+  struct Scratch {
     Candidates cand;
-    std::vector<std::uint32_t> scratch;
+    std::vector<std::uint32_t> index;
     std::vector<std::pair<float, std::uint32_t>> nb;
-    // The members within `radius` cells of `cell`, loaded; any point within radius * cell of a
-    // point of `cell` is among them.
-    const auto gather = [&](std::size_t cell, int radius) {
-      cand.index.clear();
-      grid.gatherAround(cell, radius, cand.index);
-      if (!all)
-        cand.index.erase(std::remove_if(cand.index.begin(), cand.index.end(),
-                                        [&](std::uint32_t j) { return !member(j); }),
-                         cand.index.end());
-      cand.load(points);
-    };
-#pragma omp for schedule(dynamic, 32)
-    for (long long c = 0; c < cells; ++c) {
-      const auto cell = static_cast<std::size_t>(c);
-      bool any = false;
-      for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell) && !any; ++it)
-        any = want(*it);
-      if (!any) continue;
-      gather(cell, 1);
-      bool wide = false;  // cand holds a wider gather than the 3x3x3 block
-      for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell); ++it) {
-        if (!want(*it)) continue;
-        const float* q = xyz + 3 * *it;
-        const auto reach2 = [&](int r) {
-          return static_cast<float>(r * r * grid.cell() * grid.cell());
-        };
-        bool found = cand.nearest(q, k, reach2(wide ? 4 : 1), nb);
-        if (!found && !wide && all) {
-          grid.knn(*it, cell, k, 4, nb, scratch);
-        } else if (!found && !wide) {
-          gather(cell, 4);
-          wide = true;
-          cand.nearest(q, k, reach2(4), nb);
-        }
-        if (nb.size() >= 3) fn(*it, nb);
+  };
+  std::vector<Scratch> per_worker(static_cast<std::size_t>(std::max(threads, 1)));
+  // The members within `radius` cells of `cell`, loaded into `cand`; any point within radius *
+  // cell of a point of `cell` is among them.
+  const auto gather = [&](Candidates& cand, std::size_t cell, int radius) {
+    cand.index.clear();
+    grid.gatherAround(cell, radius, cand.index);
+    if (!all)
+      cand.index.erase(std::remove_if(cand.index.begin(), cand.index.end(),
+                                      [&](std::uint32_t j) { return !member(j); }),
+                       cand.index.end());
+    cand.load(points);
+  };
+  const auto reach2 = [&](int r) { return static_cast<float>(r * r * grid.cell() * grid.cell()); };
+  const auto visitCell = [&](Scratch& s, std::size_t cell) {
+    bool any = false;
+    for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell) && !any; ++it)
+      any = want(*it);
+    if (!any) return;
+    gather(s.cand, cell, 1);
+    bool wide = false;  // cand holds a wider gather than the 3x3x3 block
+    for (const std::uint32_t* it = grid.cellBegin(cell); it != grid.cellEnd(cell); ++it) {
+      if (!want(*it)) continue;
+      const float* q = xyz + 3 * *it;
+      const bool found = s.cand.nearest(q, k, reach2(wide ? 4 : 1), s.nb);
+      if (!found && !wide && all) {
+        grid.knn(*it, cell, k, 4, s.nb, s.index);
+      } else if (!found && !wide) {
+        gather(s.cand, cell, 4);
+        wide = true;
+        s.cand.nearest(q, k, reach2(4), s.nb);
       }
+      if (s.nb.size() >= 3) fn(*it, s.nb);
     }
-  }
+  };
+  detail::parallelChunks(cells, threads, 32, [&](int worker, long long begin, long long end) {
+    for (long long c = begin; c < end; ++c)
+      visitCell(per_worker[static_cast<std::size_t>(worker)], static_cast<std::size_t>(c));
+  });
 }
 
 template <typename Want, typename Fn>
@@ -265,28 +265,28 @@ std::vector<double> momentIntegral(const PointCloud& cloud, const Eigen::Vector3
   const int h = static_cast<int>(cloud.height);
   const std::size_t stride = static_cast<std::size_t>(w + 1) * kChannels;
   std::vector<double> s(stride * static_cast<std::size_t>(h + 1), 0.0);
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int r = 0; r < h; ++r) {
-    double acc[kChannels] = {0};
-    double* row = s.data() + stride * static_cast<std::size_t>(r + 1);
-    for (int c = 0; c < w; ++c) {
-      const float* pf = detail::xyzData(cloud.points) + 3 * (static_cast<std::size_t>(r) * w + c);
-      if (detail::finite3(pf)) {
-        const double x = pf[0] - centre.x();
-        const double y = pf[1] - centre.y();
-        const double z = pf[2] - centre.z();
-        const double v[kChannels] = {1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z};
-        for (int k = 0; k < kChannels; ++k) acc[k] += v[k];
+  detail::parallelChunks(h, threads, 8, [&](int, long long r0, long long r1) {
+    for (long long r = r0; r < r1; ++r) {
+      double acc[kChannels] = {0};
+      double* row = s.data() + stride * static_cast<std::size_t>(r + 1);
+      for (int c = 0; c < w; ++c) {
+        const float* pf = detail::xyzData(cloud.points) + 3 * (static_cast<std::size_t>(r) * w + c);
+        if (detail::finite3(pf)) {
+          const double x = pf[0] - centre.x();
+          const double y = pf[1] - centre.y();
+          const double z = pf[2] - centre.z();
+          const double v[kChannels] = {1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z};
+          for (int k = 0; k < kChannels; ++k) acc[k] += v[k];
+        }
+        double* cell = row + static_cast<std::size_t>(c + 1) * kChannels;
+        for (int k = 0; k < kChannels; ++k) cell[k] = acc[k];
       }
-      double* cell = row + static_cast<std::size_t>(c + 1) * kChannels;
-      for (int k = 0; k < kChannels; ++k) cell[k] = acc[k];
     }
-  }
+  });
   // Column pass, row after row so the inner loop is contiguous; threads split the columns.
   constexpr std::size_t kChunk = 1024;
   const auto chunks = static_cast<long long>((stride + kChunk - 1) / kChunk);
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (long long k = 0; k < chunks; ++k) {
+  detail::parallelChunks(chunks, threads, 1, [&](int, long long k, long long) {
     const std::size_t j0 = static_cast<std::size_t>(k) * kChunk;
     const std::size_t j1 = std::min(stride, j0 + kChunk);
     for (int r = 1; r <= h; ++r) {
@@ -294,7 +294,7 @@ std::vector<double> momentIntegral(const PointCloud& cloud, const Eigen::Vector3
       const double* above = row - stride;
       for (std::size_t j = j0; j < j1; ++j) row[j] += above[j];
     }
-  }
+  });
   return s;
 }
 
@@ -342,8 +342,7 @@ void windowNormals(const PointCloud& cloud, const Config& cfg, int threads, int 
   };
   const float* xyz = detail::xyzData(cloud.points);
   const int rows = (h + stride - 1) / stride;
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 4)
-  for (int rs = 0; rs < rows; ++rs) {
+  const auto rowNormals = [&](int rs) {
     const int r = rs * stride;
     for (int c = 0; c < w; c += stride) {
       const std::size_t i = static_cast<std::size_t>(r) * w + c;
@@ -381,7 +380,10 @@ void windowNormals(const PointCloud& cloud, const Config& cfg, int threads, int 
         }
       }
     }
-  }
+  };
+  detail::parallelChunks(rows, threads, 4, [&](int, long long begin, long long end) {
+    for (long long rs = begin; rs < end; ++rs) rowNormals(static_cast<int>(rs));
+  });
 }
 
 }  // namespace
@@ -403,7 +405,7 @@ std::vector<Eigen::Vector3f> estimateNormalsStrided(const PointCloud& cloud, con
   std::vector<float> curv(cloud.size(), kNaN);
   std::vector<float> rms(cloud.isOrganized() ? 0 : cloud.size(), kNaN);
   if (noisy) *noisy = false;
-  const int threads = ompThreads(cfg);
+  const int threads = resolveThreads(cfg.threads);
   if (cloud.isOrganized()) {
     windowNormals(cloud, cfg, threads, std::max(1, stride), normals, curv);
   } else {
@@ -434,7 +436,7 @@ std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vecto
   std::vector<Eigen::Vector3f> out = points;
   if (cfg.cloud_smooth_knn < 3) return out;
   forEachKnn(
-      points, cfg.cloud_smooth_knn, detail::ompThreads(cfg),
+      points, cfg.cloud_smooth_knn, detail::resolveThreads(cfg.threads),
       [&](std::uint32_t i, const Neighbours& nb) {
         Eigen::Vector3d c;
         Eigen::Vector3f n;

@@ -14,7 +14,6 @@
 #include "planesdf/plane.hpp"
 
 #ifdef _OPENMP
-#include <omp.h>
 #endif
 
 namespace planesdf {
@@ -176,15 +175,6 @@ void validatePlaneConfig(const Config& c) {
 // --- internal helpers ----------------------------------------------------------------------------
 
 namespace detail {
-
-int ompThreads(const Config& cfg) {
-  if (cfg.threads > 0) return cfg.threads;
-#ifdef _OPENMP
-  return omp_get_max_threads();
-#else
-  return 1;
-#endif
-}
 
 std::vector<std::uint32_t> validIndices(const std::vector<Eigen::Vector3f>& points) {
   std::vector<std::uint32_t> out;

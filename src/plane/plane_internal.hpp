@@ -8,13 +8,11 @@
 #include <cstdint>
 #include <vector>
 
+#include "../parallel.hpp"
 #include "planesdf/config.hpp"
 #include "planesdf/plane.hpp"
 
 namespace planesdf::detail {
-
-/// OpenMP thread count for the plane stage: cfg.threads, or the OpenMP default when 0.
-int ompThreads(const Config& cfg);
 
 /// Small deterministic PRNG (SplitMix64); identical streams on every platform.
 struct SplitMix64 {

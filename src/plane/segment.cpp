@@ -226,7 +226,7 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
   const std::vector<std::uint32_t> valid = detail::validIndices(world.points);
   if (valid.size() < 3) return out;
   if (cfg.up_auto) out.up = estimateUp(world, cfg);
-  const int threads = detail::ompThreads(cfg);
+  const int threads = detail::resolveThreads(cfg.threads);
   const std::vector<Candidate> candidates =
       planeCandidates(world.points, normals, out.up, cfg, threads);
   const std::optional<Eigen::Vector3d> sensor = sensorOrigin(world);
@@ -280,11 +280,11 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
   // Refit and refine the parts (independent of each other).
   std::vector<std::optional<Found>> finished(parts.size());
   const auto n_parts = static_cast<long long>(parts.size());
-#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
-  for (long long k = 0; k < n_parts; ++k) {
-    finished[k] = finishPart(world.points, std::move(parts[k]), *part_candidate[k], out.up, sensor,
-                             centroid, cfg);
-  }
+  detail::parallelChunks(n_parts, threads, 1, [&](int, long long begin, long long end) {
+    for (long long k = begin; k < end; ++k)
+      finished[k] = finishPart(world.points, std::move(parts[k]), *part_candidate[k], out.up,
+                               sensor, centroid, cfg);
+  });
   std::vector<Found> found;
   for (auto& f : finished) {
     if (f) found.push_back(std::move(*f));

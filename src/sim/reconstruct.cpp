@@ -3,8 +3,6 @@
 // frame, as Open3D and voxblox do), zero-crossing points and marching cubes.
 #include "reconstruct.hpp"
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -167,14 +165,14 @@ std::vector<std::uint64_t> SparseTsdf::touchedBlocks(const DepthFrame& frame,
   const double block_size = kSide * voxel_;
   const int t = std::max(1, threads);
   std::vector<std::vector<std::uint64_t>> found(static_cast<std::size_t>(t));
-#pragma omp parallel num_threads(t) if (t > 1)
-  {
-    std::vector<std::uint64_t>& out = found[static_cast<std::size_t>(omp_get_thread_num())];
-    // Neighbouring pixels touch the same blocks: a small direct-mapped cache of recent keys
-    // keeps most repeats out of `out`.
-    std::vector<std::uint64_t> recent(4096, ~std::uint64_t{0});
-#pragma omp for schedule(static)
-    for (int v = 0; v < K.height; ++v)
+  // Neighbouring pixels touch the same blocks: a small direct-mapped cache of recent keys per
+  // worker keeps most repeats out of its list.
+  std::vector<std::vector<std::uint64_t>> recents(static_cast<std::size_t>(t));
+  planesdf::detail::parallelChunks(K.height, t, 8, [&](int worker, long long v0, long long v1) {
+    std::vector<std::uint64_t>& out = found[static_cast<std::size_t>(worker)];
+    std::vector<std::uint64_t>& recent = recents[static_cast<std::size_t>(worker)];
+    if (recent.empty()) recent.assign(4096, ~std::uint64_t{0});
+    for (int v = static_cast<int>(v0); v < v1; ++v)
       for (int u = 0; u < K.width; ++u) {
         const float z = frame.at(u, v);
         if (!DepthFrame::isValidDepth(z) || z > max_depth_) continue;
@@ -194,7 +192,7 @@ std::vector<std::uint64_t> SparseTsdf::touchedBlocks(const DepthFrame& frame,
               out.push_back(key);
             }
       }
-  }
+  });
   std::vector<std::uint64_t> keys;
   for (const std::vector<std::uint64_t>& f : found) keys.insert(keys.end(), f.begin(), f.end());
   std::sort(keys.begin(), keys.end());

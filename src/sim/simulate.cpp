@@ -1,6 +1,5 @@
 // A whole simulation: both sessions rendered (OpenMP over frames), the whole-scene clouds
 // (centroid per kVoxel cell), the ground-truth labels, and the `planesdf simulate` folder.
-#include <omp.h>
 
 #include <algorithm>
 #include <chrono>
@@ -13,6 +12,7 @@
 #include <system_error>
 #include <vector>
 
+#include "../parallel.hpp"
 #include "key_index.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/io/ply.hpp"
@@ -127,16 +127,18 @@ class CellAccumulator {
                                          std::uint64_t{1} << kAxisBits, 1};
     std::vector<std::uint8_t> keep(keys_.size(), 0);
     const std::int64_t n = static_cast<std::int64_t>(keys_.size());
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static)
-    for (std::int64_t j = 0; j < n; ++j) {
-      const auto i = static_cast<std::size_t>(j);
-      if (covered.find(keys_[i]) != KeyIndex::kNone) continue;
-      const double limit = kShellRatio * counts_[i];
-      bool shell = false;
-      for (const std::uint64_t step : kSteps)
-        shell = shell || count(keys_[i] + step) > limit || count(keys_[i] - step) > limit;
-      keep[i] = shell ? 0 : 1;
-    }
+    planesdf::detail::parallelChunks(
+        n, threads, planesdf::detail::kPointGrain, [&](int, long long begin, long long end) {
+          for (long long j = begin; j < end; ++j) {
+            const auto i = static_cast<std::size_t>(j);
+            if (covered.find(keys_[i]) != KeyIndex::kNone) continue;
+            const double limit = kShellRatio * counts_[i];
+            bool shell = false;
+            for (const std::uint64_t step : kSteps)
+              shell = shell || count(keys_[i] + step) > limit || count(keys_[i] - step) > limit;
+            keep[i] = shell ? 0 : 1;
+          }
+        });
     std::vector<std::uint32_t> kept;
     for (std::size_t i = 0; i < keys_.size(); ++i)
       if (keep[i]) kept.push_back(static_cast<std::uint32_t>(i));
@@ -177,8 +179,7 @@ std::vector<Vector3d> wholeCloud(const SessionData& data, const Intrinsics& K, i
     std::vector<CellAccumulator> partial(
         static_cast<std::size_t>(count),
         CellAccumulator(static_cast<std::size_t>(K.width) * K.height / 2));
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(static, 1)
-    for (int k = 0; k < count; ++k) {
+    planesdf::detail::parallelFor(count, threads, [&](int k) {
       const DepthFrame& f = data.frames[static_cast<std::size_t>(batch + k)];
       const Pose& T = data.true_poses[static_cast<std::size_t>(batch + k)];
       CellAccumulator& acc = partial[static_cast<std::size_t>(k)];
@@ -190,7 +191,7 @@ std::vector<Vector3d> wholeCloud(const SessionData& data, const Intrinsics& K, i
           const Vector3d pw = T * pc;
           acc.add(packCell(cellOf(pw, z)), pw, 1);
         }
-    }
+    });
     for (const CellAccumulator& acc : partial) cells.merge(acc);
   }
   return cells.centroids(threads);
@@ -209,14 +210,15 @@ struct Labeller {
   std::vector<int> owners(const std::vector<Vector3d>& points, int threads) const {
     const std::int64_t m = static_cast<std::int64_t>(points.size());
     std::vector<int> owner(points.size(), 0);
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4096)
-    for (std::int64_t j = 0; j < m; ++j) {
-      const auto i = static_cast<std::size_t>(j);
-      int o = 0;
-      if (changed_world.nearest(points[i], o) <= kLabelDistance &&
-          world.nearest(points[i], o) <= kLabelDistance && ids.count(o))
-        owner[i] = o;
-    }
+    planesdf::detail::parallelChunks(m, threads, 4096, [&](int, long long begin, long long end) {
+      for (long long j = begin; j < end; ++j) {
+        const auto i = static_cast<std::size_t>(j);
+        int o = 0;
+        if (changed_world.nearest(points[i], o) <= kLabelDistance &&
+            world.nearest(points[i], o) <= kLabelDistance && ids.count(o))
+          owner[i] = o;
+      }
+    });
     return owner;
   }
 };
@@ -307,8 +309,7 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
   data.frames.resize(static_cast<std::size_t>(n));
 
   const auto t0 = std::chrono::steady_clock::now();
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 1)
-  for (int i = 0; i < n; ++i) {
+  planesdf::detail::parallelFor(n, threads, [&](int i) {
     const std::uint64_t seed = (std::uint64_t{scene.seed} << 32) |
                                (static_cast<std::uint64_t>(index) << 24) |
                                static_cast<std::uint64_t>(i);
@@ -316,7 +317,7 @@ SessionData simulateSession(const Scene& scene, int index, const std::vector<int
                                        data.true_poses[static_cast<std::size_t>(i)], seed);
     f.timestamp = i / scene.sensor.frame_rate;
     data.frames[static_cast<std::size_t>(i)] = std::move(f);
-  }
+  });
   for (const Pose& T : data.true_poses) data.reported_poses.push_back(E * T);
   report("rendered " + std::to_string(n) + " frames in " + fixed(secondsSince(t0), 1) + " s");
 
@@ -344,7 +345,7 @@ Simulation simulate(const Scene& scene, const SimulateOptions& options) {
     throw Error("", "SimulateOptions::reconstruction_voxel: " + std::to_string(voxel) +
                         " m is outside [" + fixed(kMinReconstructionVoxel, 3) + ", " +
                         fixed(kMaxReconstructionVoxel, 3) + "] m");
-  const int threads = options.threads > 0 ? options.threads : std::max(1, omp_get_max_threads());
+  const int threads = planesdf::detail::resolveThreads(options.threads);
   const ChangedIds changed = changedObjects(scene);
   Simulation sim;
   sim.reference = simulateSession(scene, 0, changed.reference, threads, options);

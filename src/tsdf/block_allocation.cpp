@@ -1,12 +1,11 @@
 // Pass 1b: the in-band flags of a frame's pixels and the allocation of the blocks their
 // truncation segments cross (the scalar reference; block_allocation_avx2.cpp is its row kernel).
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -122,12 +121,14 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
     else
       grid.clear();  // a non-finite pose: no grid
   }
-  std::size_t count = 0;
-#pragma omp parallel num_threads(threads) if (threads > 1) reduction(+ : count)
-  {
-    SegmentBlocks segments(vol, grid);
-#pragma omp for schedule(dynamic, 8)
-    for (int v = 0; v < H; ++v) {
+  // Per worker: its segment walker (created on its first rows) and its count of in-band pixels.
+  std::vector<std::unique_ptr<SegmentBlocks>> segments(static_cast<std::size_t>(threads));
+  std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
+  parallelChunks(H, threads, 8, [&](int worker, long long v0, long long v1) {
+    auto& seg = segments[static_cast<std::size_t>(worker)];
+    if (!seg) seg = std::make_unique<SegmentBlocks>(vol, grid);
+    std::size_t& count = counts[static_cast<std::size_t>(worker)];
+    for (int v = static_cast<int>(v0); v < v1; ++v) {
       const float yn = fm.yn[v];
       const std::size_t row = static_cast<std::size_t>(v) * W;
       const AllocRow r{depth_img.data() + row,
@@ -144,13 +145,17 @@ std::size_t allocateInBand(TsdfVolume& vol, const std::vector<float>& depth_img,
                        band};
 #if PLANESDF_AVX2_KERNEL
       if (simd) {
-        count += static_cast<std::size_t>(allocateRowAvx2(r, segments));
+        count += static_cast<std::size_t>(allocateRowAvx2(r, *seg));
         continue;
       }
 #endif
-      for (int u = 0; u < W; ++u) count += static_cast<std::size_t>(allocatePixel(r, u, segments));
+      for (int u = 0; u < W; ++u) count += static_cast<std::size_t>(allocatePixel(r, u, *seg));
     }
-    new_keys[omp_get_thread_num()] = segments.newKeys();
+  });
+  std::size_t count = 0;
+  for (std::size_t w = 0; w < segments.size(); ++w) {
+    count += counts[w];
+    if (segments[w]) new_keys[w] = segments[w]->newKeys();
   }
   allocated = allocateKeys(vol, new_keys, cfg);
   return count;

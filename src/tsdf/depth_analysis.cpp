@@ -1,8 +1,6 @@
 // Pass 1a: the plane- and pose-independent analysis of a depth frame (DepthFrameAnalysis):
 // per-pixel measurements, edge and silhouette distances, the guard tiles.
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -188,6 +186,73 @@ void dilateMin(std::vector<float>& map, int w, int h, int r) {
     }
 }
 
+/// The scratch of one worker of pass 1a: the edge and silhouette columns of the row at hand.
+struct RowScratch {
+  std::vector<int> edge_cols, silhouette_cols;
+};
+
+/// Valid pixels and the sum of their depths.
+struct DepthSum {
+  std::size_t valid = 0;
+  double depth = 0.0;
+};
+
+/// Pixel row v of pass 1a (analysePixels): its measurements, k, edge and silhouette distances,
+/// and its tile row's guard and largest depth. Adds its valid pixels and their depths to `sum`.
+void analyseRow(const DepthFrame& frame, const Camera& cam, float trunc, int v,
+                FrameMeasurements& fm, std::vector<float>& k_exact, RowScratch& s, DepthSum& sum) {
+  const int W = cam.width, H = cam.height;
+  const float footprint = 1.0f / std::min(cam.fx, cam.fy);  // pixel size at unit depth
+  const float inv_depth_scale = 1.0f / fm.depth_scale;
+  const std::vector<float>& xn = fm.xn;
+  const int ty = v >> kGuardTileShift;
+  float* guard_row = fm.guard.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
+  float* max_depth_row = fm.tile_max_depth.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
+  const float yn = fm.yn[v];
+  const float* depth = frame.depth.data() + static_cast<std::size_t>(v) * W;
+  const float* above = v > 0 ? depth - W : nullptr;
+  const float* below = v + 1 < H ? depth + W : nullptr;
+  PixelMeasurement* out = fm.pixels.data() + static_cast<std::size_t>(v) * W;
+  float* k_out = k_exact.data() + static_cast<std::size_t>(v) * W;
+  s.edge_cols.clear();
+  s.silhouette_cols.clear();
+  for (int u = 0; u < W; ++u) {
+    const float d = depth[u];
+    k_out[u] = 0.0f;
+    if (!(d >= cam.z_min && d <= cam.z_max)) {
+      out[u] = {0, 0, 0, 0};
+      continue;
+    }
+    ++sum.valid;
+    sum.depth += d;
+    float& dmax = max_depth_row[u >> kGuardTileShift];
+    dmax = std::max(dmax, d);
+    const float max_jump = std::max(trunc, kMaxJumpFootprints * d * footprint);
+    float n[3];
+    surfaceNormal(above, depth, below, u, xn[u], yn, d, cam, max_jump, n);
+    const float k = -(n[0] * xn[u] + n[1] * yn + n[2]);  // 0 when grazing
+    const bool silhouette = isForegroundEdge(above, depth, below, u, W, d, max_jump, cam);
+    if (k == 0.0f || silhouette) {
+      float& g = guard_row[u >> kGuardTileShift];
+      g = std::min(g, d);
+      s.edge_cols.push_back(u);
+      if (silhouette) s.silhouette_cols.push_back(u);
+    }
+    if (k == 0.0f) {  // grazing: carve along the optical axis only
+      out[u] = encodeMeasurement(0.0f, 0.0f, d, 1.0f, true, inv_depth_scale);
+      continue;
+    }
+    k_out[u] = k;
+    const float inv_k = 1.0f / k;
+    out[u] =
+        encodeMeasurement(n[0] * inv_k, n[1] * inv_k, d, k, d > cam.z_surface, inv_depth_scale);
+  }
+  rowEdgeDistance(s.edge_cols.data(), static_cast<int>(s.edge_cols.size()), W,
+                  fm.edge_dist.data() + static_cast<std::size_t>(v) * W);
+  rowEdgeDistance(s.silhouette_cols.data(), static_cast<int>(s.silhouette_cols.size()), W,
+                  fm.silhouette_dist.data() + static_cast<std::size_t>(v) * W);
+}
+
 /// Pass 1a over the pixels (plane-independent), parallel over rows of tiles: fills `fm` (the
 /// measurements, with only grazing pixels flagged carve-only; edge and silhouette distances;
 /// the guard and largest-depth tiles) and `k_exact` (per pixel k, 0 when the pixel is invalid
@@ -209,7 +274,6 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
   fm.pixels.resize(static_cast<std::size_t>(W) * H);
   k_exact.resize(static_cast<std::size_t>(W) * H);
   fm.depth_scale = cam.z_max / 65535.0f;
-  const float inv_depth_scale = 1.0f / fm.depth_scale;
   fm.tiles_x = (W + kGuardTile - 1) >> kGuardTileShift;
   fm.tiles_y = (H + kGuardTile - 1) >> kGuardTileShift;
   fm.guard.assign(static_cast<std::size_t>(fm.tiles_x) * fm.tiles_y,
@@ -222,76 +286,29 @@ void analysePixels(const DepthFrame& frame, const Camera& cam, float trunc, int 
   std::vector<std::size_t> row_valid(static_cast<std::size_t>(fm.tiles_y), 0);
   std::vector<double> row_depth(static_cast<std::size_t>(fm.tiles_y), 0.0);
   std::exception_ptr alongside_failure;
-#pragma omp parallel num_threads(threads) if (threads > 1)
-  {
-#pragma omp single nowait
-    {
-      if (alongside != nullptr) {
+  std::vector<RowScratch> scratch(static_cast<std::size_t>(threads));
+  const auto tileRow = [&](int ty, RowScratch& s) {
+    DepthSum sum;
+    for (int v = ty * kGuardTile; v < std::min(H, (ty + 1) * kGuardTile); ++v)
+      analyseRow(frame, cam, trunc, v, fm, k_exact, s, sum);
+    row_valid[static_cast<std::size_t>(ty)] = sum.valid;
+    row_depth[static_cast<std::size_t>(ty)] = sum.depth;
+  };
+  // Index 0 runs `alongside` (claimed first, so it starts at once); 1.. the rows of tiles.
+  const int first = alongside != nullptr ? 1 : 0;
+  parallelChunks(fm.tiles_y + first, threads, 1, [&](int worker, long long begin, long long end) {
+    for (long long i = begin; i < end; ++i) {
+      if (i < first) {
         try {
           (*alongside)();
         } catch (...) {
           alongside_failure = std::current_exception();
         }
+        continue;
       }
+      tileRow(static_cast<int>(i - first), scratch[static_cast<std::size_t>(worker)]);
     }
-    std::vector<int> edge_cols, silhouette_cols;
-    edge_cols.reserve(static_cast<std::size_t>(W));
-    silhouette_cols.reserve(static_cast<std::size_t>(W));
-#pragma omp for schedule(dynamic, 1)
-    for (int ty = 0; ty < fm.tiles_y; ++ty) {
-      std::size_t n_valid = 0;
-      double sum_depth = 0.0;
-      float* guard_row = fm.guard.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
-      float* max_depth_row = fm.tile_max_depth.data() + static_cast<std::size_t>(ty) * fm.tiles_x;
-      for (int v = ty * kGuardTile; v < std::min(H, (ty + 1) * kGuardTile); ++v) {
-        const float yn = fm.yn[v];
-        const float* depth = frame.depth.data() + static_cast<std::size_t>(v) * W;
-        const float* above = v > 0 ? depth - W : nullptr;
-        const float* below = v + 1 < H ? depth + W : nullptr;
-        PixelMeasurement* out = fm.pixels.data() + static_cast<std::size_t>(v) * W;
-        float* k_out = k_exact.data() + static_cast<std::size_t>(v) * W;
-        edge_cols.clear();
-        silhouette_cols.clear();
-        for (int u = 0; u < W; ++u) {
-          const float d = depth[u];
-          k_out[u] = 0.0f;
-          if (!(d >= cam.z_min && d <= cam.z_max)) {
-            out[u] = {0, 0, 0, 0};
-            continue;
-          }
-          ++n_valid;
-          sum_depth += d;
-          float& dmax = max_depth_row[u >> kGuardTileShift];
-          dmax = std::max(dmax, d);
-          const float max_jump = std::max(trunc, kMaxJumpFootprints * d * footprint);
-          float n[3];
-          surfaceNormal(above, depth, below, u, xn[u], yn, d, cam, max_jump, n);
-          const float k = -(n[0] * xn[u] + n[1] * yn + n[2]);  // 0 when grazing
-          const bool silhouette = isForegroundEdge(above, depth, below, u, W, d, max_jump, cam);
-          if (k == 0.0f || silhouette) {
-            float& g = guard_row[u >> kGuardTileShift];
-            g = std::min(g, d);
-            edge_cols.push_back(u);
-            if (silhouette) silhouette_cols.push_back(u);
-          }
-          if (k == 0.0f) {  // grazing: carve along the optical axis only
-            out[u] = encodeMeasurement(0.0f, 0.0f, d, 1.0f, true, inv_depth_scale);
-            continue;
-          }
-          k_out[u] = k;
-          const float inv_k = 1.0f / k;
-          out[u] = encodeMeasurement(n[0] * inv_k, n[1] * inv_k, d, k, d > cam.z_surface,
-                                     inv_depth_scale);
-        }
-        rowEdgeDistance(edge_cols.data(), static_cast<int>(edge_cols.size()), W,
-                        fm.edge_dist.data() + static_cast<std::size_t>(v) * W);
-        rowEdgeDistance(silhouette_cols.data(), static_cast<int>(silhouette_cols.size()), W,
-                        fm.silhouette_dist.data() + static_cast<std::size_t>(v) * W);
-      }
-      row_valid[static_cast<std::size_t>(ty)] = n_valid;
-      row_depth[static_cast<std::size_t>(ty)] = sum_depth;
-    }
-  }
+  });
   if (alongside_failure) std::rethrow_exception(alongside_failure);
   std::size_t n_valid = 0;
   double sum_depth = 0.0;

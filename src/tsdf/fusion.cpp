@@ -1,8 +1,6 @@
 // What depth integration and splatting share: the config check, the thread count, the height
 // band and the bookkeeping of a pass's outcomes. See tsdf.hpp for the contracts.
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -15,10 +13,6 @@
 
 namespace planesdf {
 namespace fusion_detail {
-
-int resolveThreads(int requested) {
-  return requested > 0 ? requested : std::max(1, omp_get_max_threads());
-}
 
 Band makeBand(const Config& cfg, double voxel, double truncation) {
   Band b;

@@ -10,6 +10,7 @@
 #include <limits>
 #include <vector>
 
+#include "../parallel.hpp"
 #include "planesdf/tsdf.hpp"
 
 #if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
@@ -29,8 +30,8 @@ inline int floorToInt(float x) {
   return i - (x < static_cast<float>(i) ? 1 : 0);
 }
 
-/// `requested` threads, or OpenMP's default when it is 0 or less (fusion.cpp).
-int resolveThreads(int requested);
+using detail::parallelChunks;
+using detail::resolveThreads;
 
 /// Heights (local z) that bound the fusion: points are fused when h is in [pt_lo, pt_hi];
 /// voxels are updated when their centre's h is in [vox_lo, vox_hi] (the point band widened by

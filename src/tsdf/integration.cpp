@@ -1,8 +1,6 @@
 // Projective integration of depth frames (integrateDepth): the blocks in the frustum, in image
 // order, each updated by the voxel kernel. See tsdf.hpp for the contracts.
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -142,12 +140,13 @@ IntegrationResult integrateDepth(TsdfVolume& vol, const DepthFrameAnalysis& anal
                         simd};
   const std::vector<std::uint32_t> order = imageOrder(vol, slots, cam);
   const int n = static_cast<int>(order.size());
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 4)
-  for (int i = 0; i < n; ++i) {
-    const std::uint32_t j = order[i];
-    outcomes[j] =
-        updateBlockFromDepth(vol.block(slots[j]), vol.blockIndex(slots[j]), cam, cull, prm);
-  }
+  parallelChunks(n, threads, 4, [&](int, long long begin, long long end) {
+    for (long long i = begin; i < end; ++i) {
+      const std::uint32_t j = order[i];
+      outcomes[j] =
+          updateBlockFromDepth(vol.block(slots[j]), vol.blockIndex(slots[j]), cam, cull, prm);
+    }
+  });
   finishIntegration(vol, slots, outcomes, res);
   return res;
 }

@@ -1,8 +1,6 @@
 // Splatting of points with normals (integratePointsWithNormals), for unorganised clouds. See
 // tsdf.hpp for the contracts.
 
-#include <omp.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -148,16 +146,17 @@ IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
   const float r2 = r_lat * r_lat;
   const int threads = resolveThreads(cfg.threads);
   const int n = static_cast<int>(order.size());
-#pragma omp parallel for num_threads(threads) if (threads > 1) schedule(dynamic, 2)
-  for (int i = 0; i < n; ++i) {
-    const auto [slot, id] = order[i];
-    slots[i] = slot;
-    TsdfBlock& blk = vol.block(slot);
-    BlockOutcome& o = outcomes[i];
-    for (std::uint32_t k = start[id]; k < start[id + 1]; ++k)
-      o.updates += applySplat(blk, splats[list[k]], trunc, r2, voxel, cfg.max_weight, &o.changed);
-    o.in_view = o.updates > 0;
-  }
+  parallelChunks(n, threads, 2, [&](int, long long begin, long long end) {
+    for (long long i = begin; i < end; ++i) {
+      const auto [slot, id] = order[i];
+      slots[i] = slot;
+      TsdfBlock& blk = vol.block(slot);
+      BlockOutcome& o = outcomes[i];
+      for (std::uint32_t k = start[id]; k < start[id + 1]; ++k)
+        o.updates += applySplat(blk, splats[list[k]], trunc, r2, voxel, cfg.max_weight, &o.changed);
+      o.in_view = o.updates > 0;
+    }
+  });
   finishIntegration(vol, slots, outcomes, res);
   return res;
 }
