@@ -2,7 +2,8 @@
 # Builds planesdf and runs every test, as CI does (.ci/run calls this script):
 #   1. Release build with warnings as errors; all tests (unit, adapter, end-to-end on ../shared).
 #   2. Install into a prefix and build + run an out-of-tree find_package(planesdf) consumer.
-#   3. AddressSanitizer + UndefinedBehaviorSanitizer build; the unit tests.
+#   3. AddressSanitizer + UndefinedBehaviorSanitizer build; the unit tests; the worker pool's
+#      tests under ThreadSanitizer.
 #   4. The libFuzzer targets (clang, ASan + UBSan), 30 s each, then their regression inputs
 #      (scripts/run-fuzz.sh).
 # Usage: bash scripts/run-tests.sh [--no-sanitizers]
@@ -46,6 +47,13 @@ if [ "$sanitizers" = 1 ]; then
   step "sanitizer unit tests"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
     ctest --test-dir build-asan -L unit --output-on-failure -j"$jobs" --timeout 900
+  step "thread sanitizer: the worker pool"
+  # The pool's synchronisation (src/parallel.cpp) under TSan, through its own tests (TSan's
+  # runtime thread takes CPU time, so the idle-CPU test is left to the builds above).
+  g++ -std=c++17 -O1 -g -fsanitize=thread -Isrc src/parallel.cpp tests/unit/parallel_test.cpp \
+    -lgtest -lgtest_main -pthread -o build-asan/parallel_tsan
+  TSAN_OPTIONS=halt_on_error=1 build-asan/parallel_tsan --gtest_repeat=10 \
+    --gtest_filter=-ParallelTest.IdleWorkersSleep >/dev/null
   step "fuzz targets (scripts/run-fuzz.sh)"
   bash scripts/run-fuzz.sh 30
 fi

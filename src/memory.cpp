@@ -1,6 +1,7 @@
 // Large-array memory: whole mappings advised for transparent huge pages (see memory.hpp).
 
 #include "planesdf/memory.hpp"
+#include "memory_internal.hpp"
 
 #include <cstdint>
 #include <limits>

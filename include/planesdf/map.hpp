@@ -4,13 +4,15 @@
 /// planes, each owning a block-sparse TSDF of the band above it in the plane's local frame —
 /// plus the input points that fell into some band (the change outputs report them).
 ///
-/// Single-threaded ownership: one thread calls integrate(); fusion parallelises internally
-/// (OpenMP, Config::threads). Copyable (deep) and movable.
+/// Single-threaded ownership: one thread at a time calls the non-const members; const members
+/// may run on several threads at once. Fusion parallelises internally on the calling thread's
+/// workers (Config::threads; docs/design.md, "Threads"). Copyable (deep) and movable.
 
 #include <Eigen/Core>
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <type_traits>
@@ -65,30 +67,23 @@ struct IntegrateStats {
 };
 
 namespace detail {
-/// A set of grid cells keyed as detail::cellKeyOf packs them (21 bits per axis): bricks of 8^3
-/// cells in a hash map, each a 512-bit mask. Neighbouring cells share a brick, so a frame's
-/// points look up a small table (and mostly the brick of the point before) instead of one large
-/// table entry per cell.
-class CellBitSet {
+struct PointCellSets;  // src/map/map_internal.hpp
+
+/// Owns a map's point-cell sets (created on first use) and copies them deeply; defined where
+/// they are complete, so the header need not show them.
+class PointCellSetsPtr {
  public:
-  /// Inserts cell `key`; true when the set did not hold it.
-  bool insert(std::uint64_t key);
-  /// Asks the cache for the table slot of the brick of cell `key`.
-  void prefetch(std::uint64_t key) const { bricks_.prefetch(brickOf(key)); }
-  /// Number of cells in the set.
-  std::size_t size() const { return cells_; }
-  /// The brick key of cell `key` (also what decides which of a map's sets holds it).
-  static std::uint64_t brickOf(std::uint64_t key) {
-    constexpr std::uint64_t m = (std::uint64_t{1} << 21) - 1;
-    return ((key & m) >> 3) | (((key >> 21) & m) >> 3) << 21 | (((key >> 42) & m) >> 3) << 42;
-  }
+  PointCellSetsPtr() noexcept;
+  ~PointCellSetsPtr();
+  PointCellSetsPtr(const PointCellSetsPtr& other);
+  PointCellSetsPtr& operator=(const PointCellSetsPtr& other);
+  PointCellSetsPtr(PointCellSetsPtr&& other) noexcept;
+  PointCellSetsPtr& operator=(PointCellSetsPtr&& other) noexcept;
+  /// The sets, empty ones created on first use.
+  PointCellSets& get();
 
  private:
-  BlockHashMap bricks_;  ///< brick key -> index into masks_
-  std::vector<std::array<std::uint64_t, 8>, LargeAllocator<std::array<std::uint64_t, 8>>> masks_;
-  std::size_t cells_ = 0;
-  std::uint64_t last_brick_ = detail::kEmptyBlockKey;  ///< the brick of the previous insert ...
-  std::uint32_t last_mask_ = 0;                        ///< ... and its mask
+  std::unique_ptr<PointCellSets> p_;
 };
 }  // namespace detail
 
@@ -174,9 +169,9 @@ class Map {
   PlaneTracker tracker_;
   std::vector<PlaneSdf> planes_;
   std::vector<Eigen::Vector3f> points_;
-  /// Cells already holding a kept point, split in two sets by brick so that two threads can
+  /// Cells already holding a kept point, split in sets by brick so that threads can
   /// de-duplicate a frame's points side by side.
-  std::array<detail::CellBitSet, 2> point_cells_;
+  detail::PointCellSetsPtr point_cells_;
   /// Map::reserveMemory's chunks, shared by the plane volumes (nullptr until then).
   std::shared_ptr<detail::HugePagePool> block_pool_;
   std::uint64_t frames_ = 0;

@@ -11,6 +11,7 @@
 #include <exception>
 #include <functional>
 
+#include "../memory_internal.hpp"
 #include "../numeric.hpp"
 #include "../parallel.hpp"
 #include "map_internal.hpp"
@@ -354,6 +355,22 @@ void detail::bandPretest(const float* xyz, int m, const std::vector<BandF>& band
   bandPretestScalar(xyz, m, bands, maybe);
 }
 
+detail::PointCellSetsPtr::PointCellSetsPtr() noexcept = default;
+detail::PointCellSetsPtr::~PointCellSetsPtr() = default;
+detail::PointCellSetsPtr::PointCellSetsPtr(const PointCellSetsPtr& other)
+    : p_(other.p_ ? std::make_unique<PointCellSets>(*other.p_) : nullptr) {}
+detail::PointCellSetsPtr& detail::PointCellSetsPtr::operator=(const PointCellSetsPtr& other) {
+  if (this != &other) p_ = other.p_ ? std::make_unique<PointCellSets>(*other.p_) : nullptr;
+  return *this;
+}
+detail::PointCellSetsPtr::PointCellSetsPtr(PointCellSetsPtr&& other) noexcept = default;
+detail::PointCellSetsPtr& detail::PointCellSetsPtr::operator=(PointCellSetsPtr&& other) noexcept =
+    default;
+detail::PointCellSets& detail::PointCellSetsPtr::get() {
+  if (!p_) p_ = std::make_unique<PointCellSets>();
+  return *p_;
+}
+
 bool detail::CellBitSet::insert(std::uint64_t key) {
   const std::uint64_t brick = brickOf(key);
   if (brick != last_brick_) {
@@ -510,6 +527,7 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
   for (std::size_t l = 0; l < lists.size(); ++l) accepted[l].assign(lists[l].size(), 0);
   constexpr std::size_t kAhead = 16;
   const int owners = std::min(threads, static_cast<int>(detail::kPointCellSets));
+  detail::PointCellSets& cells = point_cells_.get();
   detail::parallelChunks(owners, owners, 1, [&](int, long long owner, long long) {
     const auto part = static_cast<std::size_t>(owner);
     const auto step = static_cast<std::size_t>(owners);
@@ -521,13 +539,13 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
         if (j + kAhead < list.size()) {
           const std::uint64_t ahead = list[j + kAhead].second;
           const std::size_t s = detail::pointCellSet(ahead);
-          if (s % step == part) point_cells_[s].prefetch(ahead);
+          if (s % step == part) cells.sets[s].prefetch(ahead);
         }
         const std::uint64_t key = list[j].second;
         const std::size_t s = detail::pointCellSet(key);
         if (s % step != part || key == last[s]) continue;
         last[s] = key;
-        if (point_cells_[s].insert(key)) accepted[l][j] = 1;
+        if (cells.sets[s].insert(key)) accepted[l][j] = 1;
       }
     }
   });

@@ -2,6 +2,7 @@
 // Internal helpers shared by map.cpp and map_io.cpp.
 #include <Eigen/Core>
 
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -41,11 +42,42 @@ inline std::uint64_t cellKeyOf(const Eigen::Vector3f& p, double cell) {
   return q(p.x()) | (q(p.y()) << 21) | (q(p.z()) << 42);
 }
 
+/// A set of grid cells keyed as detail::cellKeyOf packs them (21 bits per axis): bricks of 8^3
+/// cells in a hash map, each a 512-bit mask. Neighbouring cells share a brick, so a frame's
+/// points look up a small table (and mostly the brick of the point before) instead of one large
+/// table entry per cell.
+class CellBitSet {
+ public:
+  /// Inserts cell `key`; true when the set did not hold it.
+  bool insert(std::uint64_t key);
+  /// Asks the cache for the table slot of the brick of cell `key`.
+  void prefetch(std::uint64_t key) const { bricks_.prefetch(brickOf(key)); }
+  /// Number of cells in the set.
+  std::size_t size() const { return cells_; }
+  /// The brick key of cell `key` (also what decides which of a map's sets holds it).
+  static std::uint64_t brickOf(std::uint64_t key) {
+    constexpr std::uint64_t m = (std::uint64_t{1} << 21) - 1;
+    return ((key & m) >> 3) | (((key >> 21) & m) >> 3) << 21 | (((key >> 42) & m) >> 3) << 42;
+  }
+
+ private:
+  BlockHashMap bricks_;  ///< brick key -> index into masks_
+  std::vector<std::array<std::uint64_t, 8>, LargeAllocator<std::array<std::uint64_t, 8>>> masks_;
+  std::size_t cells_ = 0;
+  std::uint64_t last_brick_ = detail::kEmptyBlockKey;  ///< the brick of the previous insert ...
+  std::uint32_t last_mask_ = 0;                        ///< ... and its mask
+};
+
 /// Which of the map's kPointCellSets sets holds cell `key`: a high bit of its mixed brick key
 /// (every cell of a brick in the same set; the sets' tables stay evenly used).
 constexpr std::size_t kPointCellSets = 2;
 inline std::size_t pointCellSet(std::uint64_t key) {
   return static_cast<std::size_t>(mixBlockKey(CellBitSet::brickOf(key)) >> 47) % kPointCellSets;
 }
+
+/// A map's point-cell sets (Map::point_cells_).
+struct PointCellSets {
+  std::array<CellBitSet, kPointCellSets> sets;
+};
 
 }  // namespace planesdf::detail

@@ -233,7 +233,7 @@ Map Map::deserializeBytes(const char* data, std::size_t size, const std::string&
   if (m.cfg_.point_cell > 0.0)
     for (const auto& p : m.points_) {
       const std::uint64_t key = detail::cellKeyOf(p, m.cfg_.point_cell);
-      m.point_cells_[detail::pointCellSet(key)].insert(key);
+      m.point_cells_.get().sets[detail::pointCellSet(key)].insert(key);
     }
   return m;
 }

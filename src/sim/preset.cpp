@@ -273,150 +273,183 @@ std::vector<ChangeKind> defaultChanges(const std::string& name) {
   return {ChangeKind::Add, ChangeKind::Remove, ChangeKind::Move};
 }
 
+/// Makes one change at a time on the current objects, each on objects no earlier change touched.
+/// Every method returns false when it found no object or no free place.
+class ChangeMaker {
+ public:
+  ChangeMaker(Scene& scene, Builder& b, Random& r, const std::vector<std::string>& add_supports)
+      : scene_(scene), cur_(scene.current.objects), b_(b), r_(r), add_supports_(add_supports) {}
+
+  bool make(ChangeKind kind, Change& change) {
+    switch (kind) {
+      case ChangeKind::None:
+        return true;
+      case ChangeKind::Add:
+        return add(change);
+      case ChangeKind::Remove:
+        return remove(change);
+      case ChangeKind::Move:
+      case ChangeKind::SmallMove:
+        return move(kind == ChangeKind::SmallMove, change);
+      case ChangeKind::Swap:
+        return swap(change);
+      case ChangeKind::Replace:
+        return replace(change);
+    }
+    return false;
+  }
+
+ private:
+  /// Objects of both sessions: new places must be free in both, so that no change lands where
+  /// another one left (a moved object on the spot of a removed one would be a replacement).
+  std::vector<Object> occupied() const {
+    std::vector<Object> all = cur_;
+    all.insert(all.end(), scene_.reference.objects.begin(), scene_.reference.objects.end());
+    return all;
+  }
+
+  /// Indices of the untouched current objects (not on walls if `horizontal_only`), shuffled.
+  std::vector<int> untouched(bool horizontal_only) {
+    std::vector<int> idx;
+    for (std::size_t i = 0; i < cur_.size(); ++i)
+      if (!touched_.count(cur_[i].id) && (!horizontal_only || !isWall(cur_[i].support)))
+        idx.push_back(static_cast<int>(i));
+    r_.shuffle(idx);
+    return idx;
+  }
+
+  bool add(Change& change) {
+    std::vector<std::string> supports = add_supports_;
+    r_.shuffle(supports);
+    const int id = nextId(scene_);
+    for (const std::string& sp : supports) {
+      std::vector<Object> all = occupied();
+      if (b_.addObject(all, sp, id)) {
+        cur_.push_back(all.back());
+        touched_.insert(id);
+        change.current_ids = {id};
+        return true;
+      }
+    }
+    return false;
+  }
+
+  bool remove(Change& change) {
+    const std::vector<int> idx = untouched(false);
+    if (idx.empty()) return false;
+    const Object o = cur_[static_cast<std::size_t>(idx.front())];
+    cur_.erase(cur_.begin() + idx.front());
+    touched_.insert(o.id);
+    change.reference_ids = {o.id};
+    return true;
+  }
+
+  /// A move to a free place at least 10 cm away, or (`small`) by 3 cm keeping the orientation.
+  bool move(bool small, Change& change) {
+    for (const int i : untouched(false)) {
+      Object& o = cur_[static_cast<std::size_t>(i)];
+      const Spot& s = *b_.spot(o.support);
+      const Vector2d old = Builder::planeXY(s, o);
+      const double radius = footprintRadius(o.size);
+      std::optional<Vector2d> xy;
+      if (!small) {
+        xy = b_.findPlace(s, radius, occupied(), {o.id},
+                          [&](const Vector2d& p) { return (p - old).norm() >= 0.10; });
+      } else {
+        const double a0 = r_.uniform(0.0, 2.0 * kPi);
+        for (int k = 0; k < 16 && !xy; ++k) {
+          const double a = a0 + k * (2.0 * kPi / 16);
+          const Vector2d p = old + 0.03 * Vector2d(std::cos(a), std::sin(a));
+          if (Builder::isFree(s, p, radius, occupied(), {o.id})) xy = p;
+        }
+      }
+      if (!xy) continue;
+      if (!small) {
+        Builder::placeAt(o, s, *xy, s.hung ? 0.0 : r_.uniform(0.0, 360.0));
+      } else {
+        o.position = s.plane.frame * Vector3d(xy->x(), xy->y(), 0.0);  // same orientation
+      }
+      touched_.insert(o.id);
+      change.reference_ids = change.current_ids = {o.id};
+      return true;
+    }
+    return false;
+  }
+
+  /// Two objects of different shapes on horizontal supports trade places.
+  bool swap(Change& change) {
+    const std::vector<int> idx = untouched(true);
+    for (std::size_t x = 0; x < idx.size(); ++x)
+      for (std::size_t y = x + 1; y < idx.size(); ++y) {
+        Object& a = cur_[static_cast<std::size_t>(idx[x])];
+        Object& c = cur_[static_cast<std::size_t>(idx[y])];
+        if (a.type == c.type && a.size == c.size) continue;
+        const Spot& sa = *b_.spot(a.support);
+        const Spot& sc = *b_.spot(c.support);
+        const std::vector<Object> all = occupied();
+        const bool fits = a.size.z() <= sc.plane.clearance - 0.03 &&
+                          c.size.z() <= sa.plane.clearance - 0.03 &&
+                          Builder::isFree(sc, Builder::planeXY(sc, c), footprintRadius(a.size), all,
+                                          {a.id, c.id}) &&
+                          Builder::isFree(sa, Builder::planeXY(sa, a), footprintRadius(c.size), all,
+                                          {a.id, c.id});
+        if (!fits) continue;
+        std::swap(a.position, c.position);
+        std::swap(a.support, c.support);
+        touched_.insert(a.id);
+        touched_.insert(c.id);
+        change.reference_ids = change.current_ids = {a.id, c.id};
+        return true;
+      }
+    return false;
+  }
+
+  /// An object replaced in place by a new one of another shape.
+  bool replace(Change& change) {
+    const int id = nextId(scene_);
+    for (const int i : untouched(false)) {
+      const Object old = cur_[static_cast<std::size_t>(i)];
+      const Spot& s = *b_.spot(old.support);
+      for (int attempt = 0; attempt < 30; ++attempt) {
+        Object o = old;
+        o.id = id;
+        std::tie(o.type, o.size) = b_.randomShape(s, old.type);
+        if (!Builder::isFree(s, Builder::planeXY(s, old), footprintRadius(o.size), occupied(),
+                             {old.id}))
+          continue;
+        cur_[static_cast<std::size_t>(i)] = o;
+        touched_.insert(old.id);
+        touched_.insert(id);
+        change.reference_ids = {old.id};
+        change.current_ids = {id};
+        return true;
+      }
+    }
+    return false;
+  }
+
+  Scene& scene_;
+  std::vector<Object>& cur_;
+  Builder& b_;
+  Random& r_;
+  const std::vector<std::string>& add_supports_;
+  std::set<int> touched_;
+};
+
 /// Makes the changes: current = reference objects, then each change on untouched objects.
 void applyChanges(Scene& scene, Builder& b, Random& r, const std::vector<ChangeKind>& kinds,
                   const std::vector<std::string>& add_supports, const std::string& label) {
-  std::vector<Object>& cur = scene.current.objects;
-  cur = scene.reference.objects;
-  std::set<int> touched;
-  // New places must be free in both sessions, so that no change lands where another one left
-  // (a moved object on the spot of a removed one would be a replacement).
-  const auto occupied = [&] {
-    std::vector<Object> all = cur;
-    all.insert(all.end(), scene.reference.objects.begin(), scene.reference.objects.end());
-    return all;
-  };
-  const auto fail = [&](ChangeKind k) {
-    throw Error("--scene", label + ": cannot make the '" + std::string(toString(k)) +
-                               "' change (no untouched object or no free place left)");
-  };
-  const auto untouched = [&](bool horizontal_only) {
-    std::vector<int> idx;
-    for (std::size_t i = 0; i < cur.size(); ++i)
-      if (!touched.count(cur[i].id) && (!horizontal_only || !isWall(cur[i].support)))
-        idx.push_back(static_cast<int>(i));
-    r.shuffle(idx);
-    return idx;
-  };
-
+  scene.current.objects = scene.reference.objects;
+  ChangeMaker maker(scene, b, r, add_supports);
   for (const ChangeKind kind : kinds) {
     Change change;
     change.kind = kind;
-    bool done = kind == ChangeKind::None;
-    switch (kind) {
-      case ChangeKind::None:
-        break;
-      case ChangeKind::Add: {
-        std::vector<std::string> supports = add_supports;
-        r.shuffle(supports);
-        const int id = nextId(scene);
-        for (const std::string& sp : supports) {
-          std::vector<Object> all = occupied();
-          if (b.addObject(all, sp, id)) {
-            cur.push_back(all.back());
-            done = true;
-            touched.insert(id);
-            change.current_ids = {id};
-            break;
-          }
-        }
-        break;
-      }
-      case ChangeKind::Remove: {
-        const std::vector<int> idx = untouched(false);
-        if (idx.empty()) break;
-        const Object o = cur[static_cast<std::size_t>(idx.front())];
-        cur.erase(cur.begin() + idx.front());
-        touched.insert(o.id);
-        change.reference_ids = {o.id};
-        done = true;
-        break;
-      }
-      case ChangeKind::Move:
-      case ChangeKind::SmallMove: {
-        for (const int i : untouched(false)) {
-          Object& o = cur[static_cast<std::size_t>(i)];
-          const Spot& s = *b.spot(o.support);
-          const Vector2d old = Builder::planeXY(s, o);
-          const double radius = footprintRadius(o.size);
-          std::optional<Vector2d> xy;
-          if (kind == ChangeKind::Move) {
-            xy = b.findPlace(s, radius, occupied(), {o.id},
-                             [&](const Vector2d& p) { return (p - old).norm() >= 0.10; });
-          } else {
-            const double a0 = r.uniform(0.0, 2.0 * kPi);
-            for (int k = 0; k < 16 && !xy; ++k) {
-              const double a = a0 + k * (2.0 * kPi / 16);
-              const Vector2d p = old + 0.03 * Vector2d(std::cos(a), std::sin(a));
-              if (Builder::isFree(s, p, radius, occupied(), {o.id})) xy = p;
-            }
-          }
-          if (!xy) continue;
-          if (kind == ChangeKind::Move) {
-            Builder::placeAt(o, s, *xy, s.hung ? 0.0 : r.uniform(0.0, 360.0));
-          } else {
-            o.position = s.plane.frame * Vector3d(xy->x(), xy->y(), 0.0);  // same orientation
-          }
-          touched.insert(o.id);
-          change.reference_ids = change.current_ids = {o.id};
-          done = true;
-          break;
-        }
-        break;
-      }
-      case ChangeKind::Swap: {
-        const std::vector<int> idx = untouched(true);
-        for (std::size_t x = 0; x < idx.size() && !done; ++x)
-          for (std::size_t y = x + 1; y < idx.size() && !done; ++y) {
-            Object& a = cur[static_cast<std::size_t>(idx[x])];
-            Object& c = cur[static_cast<std::size_t>(idx[y])];
-            if (a.type == c.type && a.size == c.size) continue;
-            const Spot& sa = *b.spot(a.support);
-            const Spot& sc = *b.spot(c.support);
-            const std::vector<Object> all = occupied();
-            const bool fits = a.size.z() <= sc.plane.clearance - 0.03 &&
-                              c.size.z() <= sa.plane.clearance - 0.03 &&
-                              Builder::isFree(sc, Builder::planeXY(sc, c), footprintRadius(a.size),
-                                              all, {a.id, c.id}) &&
-                              Builder::isFree(sa, Builder::planeXY(sa, a), footprintRadius(c.size),
-                                              all, {a.id, c.id});
-            if (!fits) continue;
-            std::swap(a.position, c.position);
-            std::swap(a.support, c.support);
-            touched.insert(a.id);
-            touched.insert(c.id);
-            change.reference_ids = change.current_ids = {a.id, c.id};
-            done = true;
-          }
-        break;
-      }
-      case ChangeKind::Replace: {
-        const int id = nextId(scene);
-        for (const int i : untouched(false)) {
-          const Object old = cur[static_cast<std::size_t>(i)];
-          const Spot& s = *b.spot(old.support);
-          for (int attempt = 0; attempt < 30 && !done; ++attempt) {
-            Object o = old;
-            o.id = id;
-            std::tie(o.type, o.size) = b.randomShape(s, old.type);
-            if (!Builder::isFree(s, Builder::planeXY(s, old), footprintRadius(o.size), occupied(),
-                                 {old.id}))
-              continue;
-            cur[static_cast<std::size_t>(i)] = o;
-            touched.insert(old.id);
-            touched.insert(id);
-            change.reference_ids = {old.id};
-            change.current_ids = {id};
-            done = true;
-          }
-          if (done) break;
-        }
-        break;
-      }
-    }
-    if (!done) fail(kind);
+    if (!maker.make(kind, change))
+      throw Error("--scene", label + ": cannot make the '" + std::string(toString(kind)) +
+                                 "' change (no untouched object or no free place left)");
     scene.changes.push_back(change);
   }
+  std::vector<Object>& cur = scene.current.objects;
   std::sort(cur.begin(), cur.end(), [](const Object& a, const Object& c) { return a.id < c.id; });
 }
 

@@ -88,22 +88,17 @@ DepthFrame renderDepth(const Scene& scene, const Session& session, const Pose& c
 }
 
 namespace detail {
+namespace {
 
-DepthFrame renderFrame(const World& world, const SensorModel& sensor, const Pose& T,
-                       std::uint64_t noise_seed) {
+/// Per screen tile of kTile pixels, the primitives that may cover it, nearest first: the screen
+/// rectangle of each primitive (its oriented bounding box, clipped to the space in front of the
+/// camera, grown by `margin` pixels) goes into the tiles it covers, with the nearest depth of
+/// the box, so a pixel tests only the primitives of its tile.
+std::vector<std::vector<std::pair<float, int>>> cullTiles(const World& world,
+                                                          const SensorModel& sensor, const Pose& T,
+                                                          double margin) {
   const Intrinsics& K = sensor.intrinsics;
   const int W = K.width, H = K.height;
-  const bool noisy = sensor.noise;
-  const double sigma_px = noisy ? sensor.lateral_sigma_px : 0.0;
-  const double jitter_max = 4.0 * sigma_px;
-  const double margin = std::ceil(jitter_max) + 1.0;
-  const Eigen::Matrix3d R = T.linear();
-  const Vector3d origin = T.translation();
-  Noise noise(noise_seed);
-
-  // Culling: the screen rectangle of each primitive (its oriented bounding box, clipped to the
-  // space in front of the camera) goes into the tiles it covers, with the nearest depth of the
-  // box, so a pixel tests only the primitives of its tile, nearest first.
   const int tiles_x = (W + kTile - 1) / kTile, tiles_y = (H + kTile - 1) / kTile;
   std::vector<std::vector<std::pair<float, int>>> tiles(static_cast<std::size_t>(tiles_x) *
                                                         tiles_y);
@@ -151,10 +146,25 @@ DepthFrame renderFrame(const World& world, const SensorModel& sensor, const Pose
         tiles[static_cast<std::size_t>(ty) * tiles_x + tx].emplace_back(near, static_cast<int>(m));
   }
   for (auto& t : tiles) std::sort(t.begin(), t.end());
+  return tiles;
+}
 
-  // Pass 1: exact depth (z along the optical axis) and incidence of each pixel's (jittered) ray.
+/// Pass 1: exact depth (z along the optical axis) and incidence of each pixel's (jittered) ray;
+/// depth 0 where nothing is hit.
+void traceRays(const World& world, const SensorModel& sensor, const Pose& T, Noise& noise,
+               std::vector<double>& depth, std::vector<double>& cosine) {
+  const Intrinsics& K = sensor.intrinsics;
+  const int W = K.width, H = K.height;
+  const double sigma_px = sensor.noise ? sensor.lateral_sigma_px : 0.0;
+  const double jitter_max = 4.0 * sigma_px;
+  const Eigen::Matrix3d R = T.linear();
+  const Vector3d origin = T.translation();
+  const bool noisy = sensor.noise;
+  const int tiles_x = (W + kTile - 1) / kTile;
+  const auto tiles = cullTiles(world, sensor, T, std::ceil(jitter_max) + 1.0);
   const std::size_t n = static_cast<std::size_t>(W) * H;
-  std::vector<double> depth(n, 0.0), cosine(n, 1.0);
+  depth.assign(n, 0.0);
+  cosine.assign(n, 1.0);
   const double cos_max = std::cos(deg2rad(sensor.max_incidence_deg));
   for (int v = 0; v < H; ++v) {
     for (int u = 0; u < W; ++u) {
@@ -176,8 +186,15 @@ DepthFrame renderFrame(const World& world, const SensorModel& sensor, const Pose
       cosine[i] = c;
     }
   }
+}
 
-  // Pass 2: edges (dropouts, flying pixels), axial noise, quantisation.
+/// Pass 2: edges (dropouts, flying pixels), axial noise, quantisation.
+DepthFrame degrade(const SensorModel& sensor, const std::vector<double>& depth,
+                   const std::vector<double>& cosine, Noise& noise) {
+  const Intrinsics& K = sensor.intrinsics;
+  const int W = K.width, H = K.height;
+  const std::size_t n = static_cast<std::size_t>(W) * H;
+  const bool noisy = sensor.noise;
   DepthFrame frame;
   frame.intrinsics = K;
   frame.depth.assign(n, 0.0f);
@@ -224,6 +241,16 @@ DepthFrame renderFrame(const World& world, const SensorModel& sensor, const Pose
     }
   }
   return frame;
+}
+
+}  // namespace
+
+DepthFrame renderFrame(const World& world, const SensorModel& sensor, const Pose& T,
+                       std::uint64_t noise_seed) {
+  Noise noise(noise_seed);
+  std::vector<double> depth, cosine;
+  traceRays(world, sensor, T, noise, depth, cosine);
+  return degrade(sensor, depth, cosine, noise);
 }
 
 }  // namespace detail

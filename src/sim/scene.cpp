@@ -189,15 +189,10 @@ std::vector<SupportPlane> supportPlanes(const Scene& scene) {
   return out;
 }
 
-void validateScene(const Scene& scene, const std::string& what) {
-  const Checker c(what);
-  // room
-  c.range(scene.room.size.x(), 1.0, 50.0, "room.size[0]", " m");
-  c.range(scene.room.size.y(), 1.0, 50.0, "room.size[1]", " m");
-  c.range(scene.room.wall_height, 0.5, 10.0, "room.wall_height", " m");
+namespace {
 
-  // sensor
-  const SensorModel& s = scene.sensor;
+/// The sensor model's fields, in their ranges.
+void validateSensor(const Checker& c, const SensorModel& s, const std::string& what) {
   try {
     s.intrinsics.validate("sensor");
   } catch (const Error& e) {
@@ -216,8 +211,10 @@ void validateScene(const Scene& scene, const std::string& what) {
   c.range(s.edge_dropout, 0.0, 1.0, "sensor.edge_dropout");
   c.range(s.flying_pixel, 0.0, 1.0 - s.edge_dropout, "sensor.flying_pixel");
   c.range(s.frame_rate, 0.001, 10000.0, "sensor.frame_rate", " Hz");
+}
 
-  // furniture
+/// Tables and shelves: unique ids, finite places, sizes in range.
+void validateFurniture(const Checker& c, const Scene& scene) {
   std::set<int> ids;
   for (std::size_t i = 0; i < scene.tables.size(); ++i) {
     const Table& t = scene.tables[i];
@@ -245,64 +242,62 @@ void validateScene(const Scene& scene, const std::string& what) {
     c.require((sh.size.z() - 0.10) / (sh.boards - 1) >= 0.1, e + ".boards",
               "boards closer than 10 cm (too many boards for the height)");
   }
+}
 
-  // sessions
-  std::set<std::string> supports;
-  for (const SupportPlane& p : supportPlanes(scene)) supports.insert(p.name);
+/// One session's objects (on known supports), orbits and localisation error.
+void validateSession(const Checker& c, const Session& session, const std::string& label,
+                     const std::set<std::string>& supports) {
+  std::set<int> ids;
   int total_frames = 0;
-  for (const auto& [session, label] :
-       {std::pair<const Session*, std::string>{&scene.reference, "reference"},
-        {&scene.current, "current"}}) {
-    ids.clear();
-    for (std::size_t i = 0; i < session->objects.size(); ++i) {
-      const Object& o = session->objects[i];
-      const std::string e = label + ".objects[" + std::to_string(i) + "]";
-      c.range(o.id, 1, kMaxId, e + ".id");
-      c.require(ids.insert(o.id).second, e + ".id", "duplicate object id " + std::to_string(o.id));
-      validateObjectShape(c, o, e);
-      c.finite(o.position, e + ".position");
-      c.require(o.orientation.coeffs().allFinite() &&
-                    std::abs(o.orientation.coeffs().norm() - 1.0) <= 0.01,
-                e + ".orientation", "must be a unit quaternion [qx, qy, qz, qw]");
-      c.require(supports.count(o.support) > 0, e + ".support",
-                "unknown support plane '" + o.support +
-                    "' (floor, wall+x/-x/+y/-y with walls, table<id>, shelf<id>.board<k>)");
-    }
-    const std::string e = label + ".trajectory";
-    c.require(!session->trajectory.empty(), e, "no orbit (the session needs camera views)");
-    for (std::size_t i = 0; i < session->trajectory.size(); ++i) {
-      const Orbit& o = session->trajectory[i];
-      const std::string oe = e + "[" + std::to_string(i) + "]";
-      c.finite(o.target, oe + ".target");
-      c.finite(o.center, oe + ".center");
-      c.range(o.radius, 0.0, 100.0, oe + ".radius", " m");
-      c.range(o.z_min, -kMaxCoordinate, kMaxCoordinate, oe + ".z_min", " m");
-      c.range(o.z_max, o.z_min, kMaxCoordinate, oe + ".z_max", " m");
-      c.range(o.height_waves, 0, 1000, oe + ".height_waves");
-      c.range(o.start_deg, -3600.0, 3600.0, oe + ".start_deg");
-      c.range(o.end_deg, -3600.0, 3600.0, oe + ".end_deg");
-      c.range(o.frames, 1, kMaxFrames, oe + ".frames");
-      c.range(o.target_follow, 0.0, 1.0, oe + ".target_follow");
-      total_frames += o.frames;
-      c.require(total_frames <= kMaxFrames, oe + ".frames",
-                "more than " + std::to_string(kMaxFrames) + " frames in the session");
-      const std::vector<Pose> poses = trajectoryPoses({o});
-      for (std::size_t k = 0; k < poses.size(); ++k)
-        c.require(poses[k].matrix().allFinite(), oe,
-                  "camera " + std::to_string(k) + " sits on its target (no viewing direction)");
-    }
-    total_frames = 0;
-    const LocalisationError& le = session->localisation_error;
-    c.finite(le.translation, label + ".localisation_error.translation");
-    c.require(le.translation.norm() <= 10.0, label + ".localisation_error.translation",
-              "absurd (more than 10 m)");
-    c.finite(le.rotation_deg, label + ".localisation_error.rotation_deg");
-    c.require(le.rotation_deg.norm() <= 180.0, label + ".localisation_error.rotation_deg",
-              "absurd (more than 180 degrees)");
-    c.finite(le.pivot, label + ".localisation_error.pivot");
+  for (std::size_t i = 0; i < session.objects.size(); ++i) {
+    const Object& o = session.objects[i];
+    const std::string e = label + ".objects[" + std::to_string(i) + "]";
+    c.range(o.id, 1, kMaxId, e + ".id");
+    c.require(ids.insert(o.id).second, e + ".id", "duplicate object id " + std::to_string(o.id));
+    validateObjectShape(c, o, e);
+    c.finite(o.position, e + ".position");
+    c.require(
+        o.orientation.coeffs().allFinite() && std::abs(o.orientation.coeffs().norm() - 1.0) <= 0.01,
+        e + ".orientation", "must be a unit quaternion [qx, qy, qz, qw]");
+    c.require(supports.count(o.support) > 0, e + ".support",
+              "unknown support plane '" + o.support +
+                  "' (floor, wall+x/-x/+y/-y with walls, table<id>, shelf<id>.board<k>)");
   }
+  const std::string e = label + ".trajectory";
+  c.require(!session.trajectory.empty(), e, "no orbit (the session needs camera views)");
+  for (std::size_t i = 0; i < session.trajectory.size(); ++i) {
+    const Orbit& o = session.trajectory[i];
+    const std::string oe = e + "[" + std::to_string(i) + "]";
+    c.finite(o.target, oe + ".target");
+    c.finite(o.center, oe + ".center");
+    c.range(o.radius, 0.0, 100.0, oe + ".radius", " m");
+    c.range(o.z_min, -kMaxCoordinate, kMaxCoordinate, oe + ".z_min", " m");
+    c.range(o.z_max, o.z_min, kMaxCoordinate, oe + ".z_max", " m");
+    c.range(o.height_waves, 0, 1000, oe + ".height_waves");
+    c.range(o.start_deg, -3600.0, 3600.0, oe + ".start_deg");
+    c.range(o.end_deg, -3600.0, 3600.0, oe + ".end_deg");
+    c.range(o.frames, 1, kMaxFrames, oe + ".frames");
+    c.range(o.target_follow, 0.0, 1.0, oe + ".target_follow");
+    total_frames += o.frames;
+    c.require(total_frames <= kMaxFrames, oe + ".frames",
+              "more than " + std::to_string(kMaxFrames) + " frames in the session");
+    const std::vector<Pose> poses = trajectoryPoses({o});
+    for (std::size_t k = 0; k < poses.size(); ++k)
+      c.require(poses[k].matrix().allFinite(), oe,
+                "camera " + std::to_string(k) + " sits on its target (no viewing direction)");
+  }
+  const LocalisationError& le = session.localisation_error;
+  c.finite(le.translation, label + ".localisation_error.translation");
+  c.require(le.translation.norm() <= 10.0, label + ".localisation_error.translation",
+            "absurd (more than 10 m)");
+  c.finite(le.rotation_deg, label + ".localisation_error.rotation_deg");
+  c.require(le.rotation_deg.norm() <= 180.0, label + ".localisation_error.rotation_deg",
+            "absurd (more than 180 degrees)");
+  c.finite(le.pivot, label + ".localisation_error.pivot");
+}
 
-  // change records
+/// Every change record names objects of the session it refers to.
+void validateChangeRecords(const Checker& c, const Scene& scene) {
   const auto has = [](const Session& s, int id) {
     return std::any_of(s.objects.begin(), s.objects.end(),
                        [id](const Object& o) { return o.id == id; });
@@ -317,6 +312,23 @@ void validateScene(const Scene& scene, const std::string& what) {
       c.require(has(scene.current, id), e + ".current_ids",
                 "object " + std::to_string(id) + " is not in the current session");
   }
+}
+
+}  // namespace
+
+void validateScene(const Scene& scene, const std::string& what) {
+  const Checker c(what);
+  c.range(scene.room.size.x(), 1.0, 50.0, "room.size[0]", " m");
+  c.range(scene.room.size.y(), 1.0, 50.0, "room.size[1]", " m");
+  c.range(scene.room.wall_height, 0.5, 10.0, "room.wall_height", " m");
+
+  validateSensor(c, scene.sensor, what);
+  validateFurniture(c, scene);
+  std::set<std::string> supports;
+  for (const SupportPlane& p : supportPlanes(scene)) supports.insert(p.name);
+  validateSession(c, scene.reference, "reference", supports);
+  validateSession(c, scene.current, "current", supports);
+  validateChangeRecords(c, scene);
 }
 
 ChangedIds changedObjects(const Scene& scene) {

@@ -7,6 +7,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "../memory_internal.hpp"
 #include "../numeric.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/tsdf.hpp"

@@ -8,6 +8,7 @@
 #include <set>
 #include <vector>
 
+#include "memory_internal.hpp"
 #include "planesdf/memory.hpp"
 #include "planesdf/tsdf.hpp"
 
