@@ -34,8 +34,8 @@ function(_planesdf_header_stage header out)
     string(REGEX REPLACE "\\.hpp$" "" _s "${_h}")
   elseif(_h STREQUAL "config_io.hpp")
     set(_s map)  # validates every stage's part of the Config
-  elseif(_h MATCHES "^(change|comparison|registration|validation|events)\\.hpp$")
-    set(_s change)
+  elseif(_h MATCHES "^(change|comparison|registration|validation|events|planesdf)\\.hpp$")
+    set(_s change)  # planesdf.hpp: the umbrella of the core, whose top stage is change
   elseif(_h MATCHES "^(eval|baseline)\\.hpp$")
     set(_s eval)
   else()

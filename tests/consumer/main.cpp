@@ -2,8 +2,7 @@
 #include <cstdio>
 #include <filesystem>
 
-#include "planesdf/config.hpp"
-#include "planesdf/io/ply.hpp"
+#include "planesdf/planesdf.hpp"  // the umbrella header, as installed
 #ifdef HAVE_PLANESDF_OCTOMAP
 #include "planesdf/octomap/octomap_conversion.hpp"
 #endif
