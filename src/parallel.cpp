@@ -29,7 +29,7 @@ inline void cpuRelax() {
 constexpr std::chrono::microseconds kCallerSpin{50};
 
 /// True on a pool's workers, and on a caller while it takes part in a loop: a loop started there
-/// runs on that thread alone (as nested OpenMP regions do by default).
+/// runs on that thread alone.
 thread_local bool tl_in_loop = false;
 
 /// One loop: chunks claimed in order from an atomic counter.

@@ -59,7 +59,7 @@ void computeRates(SideScore& s);
 
 /// Scores one side: `predicted` (field `change_id`) against `gt` (field `object_id`) with match
 /// distance `tol` (m). Throws planesdf::Error when `tol` is not positive and finite or when a
-/// cloud's per-point arrays disagree in length. Parallel over query points (OpenMP).
+/// cloud's per-point arrays disagree in length. Parallel over query cells (every CPU).
 SideScore scoreSide(const PointCloud& predicted, const PointCloud& gt, double tol);
 
 /// Pools two sides: point counts, objects, clusters, M and W summed; rates from the sums.

@@ -117,7 +117,7 @@ constexpr std::size_t kMaxHeightMapCells = std::size_t{1} << 28;
 ///  2. No surface: the cell is 0 when an observed free voxel (sdf > 0) has its centre at
 ///     h <= cfg.h_obj (free space seen down to the plane), else kUnobserved (free space seen only
 ///     high up says nothing about what sits low; no observed voxel at all says nothing).
-/// Parallel over block columns with OpenMP (cfg.threads, 0 = all cores); deterministic.
+/// Parallel over block columns (cfg.threads, 0 = all CPUs); deterministic.
 HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg);
 
 /// One connected object (or object cluster) of an ObjectMap.

@@ -126,8 +126,8 @@ std::vector<Eigen::Vector3f> projectToLocalPlanes(const std::vector<Eigen::Vecto
 /// point (NaN when the normal is NaN). `spread`, when given, receives per point of an unorganised
 /// cloud the RMS distance of the neighbours its normal came from to their plane (the local noise;
 /// empty for organised clouds). `noisy`, when given, receives isNoisyCloud of the one-scale spread
-/// (false for organised clouds); only noisy clouds get the larger scales. Parallel (OpenMP,
-/// cfg.threads; 0 = OpenMP default).
+/// (false for organised clouds); only noisy clouds get the larger scales. Parallel
+/// (cfg.threads; 0 = all CPUs).
 std::vector<Eigen::Vector3f> estimateNormals(const PointCloud& cloud, const Config& cfg,
                                              std::vector<float>* curvature = nullptr,
                                              std::vector<float>* spread = nullptr,

@@ -438,7 +438,7 @@ class DepthFrameAnalysis {
 /// to the volume's block bounds; enumerated cell by cell or by scanning the blocks, whichever is
 /// fewer), culled by their bounding sphere against the frustum planes; a block counts as updated
 /// when one of its voxel centres passes the per-voxel view test above (even if no measurement
-/// changes it). Parallel over blocks with OpenMP (cfg.threads, 0 = all cores); the result is
+/// changes it). Parallel over blocks (cfg.threads, 0 = all CPUs); the result is
 /// bit-identical for any thread count.
 ///
 /// Throws planesdf::Error on invalid intrinsics, a depth buffer of the wrong size or an invalid

@@ -1,4 +1,4 @@
-// A whole simulation: both sessions rendered (OpenMP over frames), the whole-scene clouds
+// A whole simulation: both sessions rendered (frames in parallel), the whole-scene clouds
 // (centroid per kVoxel cell), the ground-truth labels, and the `planesdf simulate` folder.
 
 #include <algorithm>
