@@ -111,9 +111,9 @@ struct InPlaceMatch {
   double shift = 0.0;    ///< m, between the two footprints' centroids (target plane frame)
   double size = 0.0;     ///< m, the smaller of the two footprints' box diagonals
   double shape_distance = std::numeric_limits<double>::infinity();  ///< shapeDistance of the two
-  /// The same object in the same place: overlap >= kInPlaceMinOverlap, shift <=
-  /// kInPlaceShiftFraction * size and shape_distance < kMovedShapeDistance.
-  bool same() const;
+  /// The same object in the same place: overlap >= cfg.in_place_min_overlap, shift <=
+  /// cfg.in_place_shift_fraction * size and shape_distance < cfg.moved_shape_distance.
+  bool same(const Config& cfg) const;
 };
 
 /// The comparison of one registered plane pair in one direction, with every stage kept (for
@@ -151,7 +151,6 @@ struct DetectOptions {
   /// Keep the height maps, object maps and masks of every plane pair in ChangeSet::pairs
   /// (otherwise pairs hold the match, refinement and validations only).
   bool keep_stages = false;
-  ValidationParams validation{};
 };
 
 /// Offline change detection between a reference and a current map (see the file comment).

@@ -185,6 +185,23 @@ struct Config {
   double delta_n = 0.95;       ///< minimum cosine between normals
   double delta_d = 0.20;       ///< m; maximum offset gap
   bool refine_inplane = true;  ///< refine (u, v, yaw) from static height-map structure
+  /// Search window of the in-plane refinement (refineInPlane), both ways along u and v (m) and in
+  /// yaw (degrees): a frame error of t metres and r radians moves points at distance D from its
+  /// centre by up to t + r D in the plane (3 cm and 2 degrees at 1.2 m).
+  double inplane_max_shift = 0.08;
+  double inplane_max_yaw_deg = 4.0;
+  /// Steps of the fine search: m (0: the target map's cell) and degrees.
+  double inplane_shift_step = 0.0;
+  double inplane_yaw_step_deg = 0.5;
+  int inplane_max_cells = 40000;  ///< source cells scored per candidate (evenly subsampled)
+  int inplane_min_compared = 50;  ///< fewer cells observed in both maps: no refinement
+  /// A refinement is applied only when it removes at least inplane_min_gain_cells mismatching
+  /// cells and either inplane_min_gain_fraction of the initial mismatches or
+  /// inplane_min_gain_sigmas standard deviations of their count (design.md, "In-plane
+  /// refinement").
+  int inplane_min_gain_cells = 20;
+  double inplane_min_gain_fraction = 0.2;
+  double inplane_min_gain_sigmas = 3.0;
 
   // --- height comparison -------------------------------------------------------------------------
   double delta_h = 0.02;      ///< m
@@ -224,6 +241,30 @@ struct Config {
   double sdf_sigma_voxels = 2.0;
   double alpha = 2.0;
   double delta_blob = 0.9;
+  /// Key voxels need |det(H / voxel_size)| >= this (Hessian in voxel units). Extrema of pure
+  /// noise reach about 1e-3 at 1 mm of SDF noise and 7 mm voxels (det grows as the noise cubed);
+  /// those of object edges and corners 1e-3 .. 5e-2.
+  double key_min_abs_det = 2e-3;
+  int key_max_voxels = 200;  ///< at most this many key voxels per blob, the largest |det|
+  /// A 3D verdict (Changed or Unchanged) needs at least this many scored key voxels, else the
+  /// blob is Unknown: the only key voxels of static table legs (on rims seen from other
+  /// viewpoints) scored "changed", while real changes score 16 to 30 (design.md, "3D verdicts").
+  int verdict_min_scored = 3;
+  /// ... where either map was splatted from a cloud without a pixel grid: its SDF carries the
+  /// points' noise, and static objects scored "changed" from 3-11 key voxels.
+  int verdict_min_scored_splatted = 12;
+
+  // --- events (design.md, "Events") ----------------------------------------------------------
+  /// Two footprints are the same object when their shapeDistance is below this: a removed and an
+  /// added one pair into a move, a blob and the other map's object under it are "in place".
+  double moved_shape_distance = 0.3;
+  /// The same object in place: the two footprints' IoU is at least in_place_min_overlap and their
+  /// centroids are at most in_place_shift_fraction of the smaller box diagonal apart.
+  double in_place_min_overlap = 0.5;
+  double in_place_shift_fraction = 0.15;
+  /// A removal whose footprint lands on current objects covering at least this share of it is a
+  /// replacement.
+  double replaced_min_overlap = 0.5;
 
   // --- incremental detection (ChangeDetector) ----------------------------------------------------
   /// A change is announced once the updates over at least this many frames of the current

@@ -81,16 +81,9 @@ bool duplicateOf(const Plane& b, const Plane& a, const Config& cfg);
 /// duplicates, and a slightly tilted copy of a wall reads the wall's own surface as objects.
 std::vector<PlaneMatch> registerPlanes(const Map& source, const Map& target, const Config& cfg);
 
-/// Search window of refineInPlane.
+/// Options of one refineInPlane call; the search window and the acceptance thresholds are
+/// Config's (inplane_*).
 struct InPlaneSearch {
-  /// m, along u and v (both ways). A frame error of t metres and r radians moves points at
-  /// distance D from its centre by up to t + r D in the plane: 3 cm and 2 degrees at 1.2 m.
-  double max_shift = 0.08;
-  double shift_step = 0.0;    ///< m; 0 = the target cell size (1-cell steps), fine search
-  double max_yaw_deg = 4.0;   ///< degrees, both ways
-  double yaw_step_deg = 0.5;  ///< degrees, fine search
-  int max_cells = 40000;      ///< source cells scored per candidate (evenly subsampled)
-  int min_compared = 50;      ///< fewer cells observed in both: no refinement
   /// The session's drift (design.md): changed objects absorb their rings and a best candidate
   /// may pass the paired test. A pair refined after the drift looks for a residual: plain
   /// shares and the count tests only.
@@ -118,9 +111,10 @@ struct InPlaneRefinement {
 /// Refines the in-plane part of `T_target_source_local` so that cells observed in both height maps
 /// agree best. The samples are the source cells (evenly subsampled) whose nearest target cell under
 /// the initial T is observed; search over a yaw (about the centre of the samples) and a shift (du,
-/// dv) within the window of `search`, coarse to fine: 2-cell and 1-degree steps over the whole
-/// window on at most 6000 samples (a sample agrees there when a target cell within one cell
-/// agrees), then 1-cell and yaw_step steps around the coarse best and around the initial T on all
+/// dv) within the window (cfg.inplane_max_shift, cfg.inplane_max_yaw_deg), coarse to fine:
+/// 2-step and 1-degree steps over the whole window on at most 6000 samples (a sample agrees there
+/// when a target cell within one cell agrees), then steps of cfg.inplane_shift_step (0: one
+/// target cell) and cfg.inplane_yaw_step_deg around the coarse best and around the initial T on all
 /// samples. A sample mismatches when its nearest target cell differs by more than cfg.delta_h; one
 /// that mismatched under the initial T and is moved off the observed target still does, so
 /// differences cannot hide in unobserved areas. The cost of a candidate counts the mismatches with
@@ -128,13 +122,14 @@ struct InPlaneRefinement {
 /// on, else to the target object it falls on under the initial T, else to the uncapped background):
 /// a moved object mismatches wholly at the right T, and a candidate that drags the map onto its new
 /// place must not win against the static objects. With search.session_drift, background samples
-/// within max_shift of an object that mismatches in more than half its samples under the initial T
-/// count in that object's share (the crescents any shift sweeps onto a changed object are no
-/// evidence against the shift). Ties are broken by the mean capped absolute difference, then by the
-/// smaller motion. Model selection: T becomes Δ * T only when the best candidate lies inside the
-/// window (a best on its border is a moved object pulling, not drift) and removes at least 20 cells
-/// and either 20 % of the initial mismatches, or 3 sigma of their count, or (search.session_drift)
-/// 3 sigma of the paired test on the cells it flips ((fixed - broken) / sqrt(fixed + broken),
+/// within cfg.inplane_max_shift of an object that mismatches in more than half its samples under
+/// the initial T count in that object's share (the crescents any shift sweeps onto a changed object
+/// are no evidence against the shift). Ties are broken by the mean capped absolute difference, then
+/// by the smaller motion. Model selection: T becomes Δ * T only when the best candidate lies inside
+/// the window (a best on its border is a moved object pulling, not drift) and removes at least
+/// cfg.inplane_min_gain_cells cells and either cfg.inplane_min_gain_fraction of the initial
+/// mismatches, or cfg.inplane_min_gain_sigmas of their count, or (search.session_drift) as many
+/// sigmas of the paired test on the cells it flips ((fixed - broken) / sqrt(fixed + broken),
 /// counting a run of s cells as one event when the candidate moves the map s cells). Empty or
 /// non-overlapping maps: nothing is done. Does not read cfg.refine_inplane (the caller decides
 /// whether to refine).

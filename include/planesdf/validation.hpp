@@ -79,14 +79,11 @@
 
 namespace planesdf {
 
-/// Tuning of the 3D validation that Config does not hold (ours, not the paper's).
+/// How keyVoxels() and validateBlob() work: the thresholds are Config's (validationParams), the
+/// rest are method switches and a size limit (ours, not the paper's).
 struct ValidationParams {
-  /// Key voxels need |det(H / voxel_size)| >= this (Hessian in voxel units, 1/voxel). Extrema of
-  /// pure noise reach about 1e-3 at 1 mm (σ) of SDF noise and 7 mm voxels (det grows as σ³);
-  /// those of object edges and corners are 1e-3 .. 5e-2.
-  double min_abs_det = 2e-3;
-  /// At most this many key voxels per blob: those with the largest |det|.
-  int max_key_voxels = 200;
+  double min_abs_det = Config{}.key_min_abs_det;  ///< Config::key_min_abs_det
+  int max_key_voxels = Config{}.key_max_voxels;   ///< Config::key_max_voxels
   /// Linear (soft) binning of the eigenpair votes; false = hard binning.
   bool soft_binning = true;
   /// Eigenpairs vote with weight |λ| (normalised); false = every eigenpair votes 1.
@@ -94,16 +91,15 @@ struct ValidationParams {
   /// Largest bounding box (in voxels, margin included) of a blob validateBlob()/keyVoxels() accept.
   long long max_box_voxels = 1LL << 24;
   /// A verdict (Changed or Unchanged) needs at least this many scored key voxels; with fewer the
-  /// blob is Unknown (its mean similarity is still reported). One or two key voxels are too little
-  /// 3D evidence either way: on the simulated room, the only key voxels of static table legs (on
-  /// their rims, seen from other viewpoints in the two sessions) and of a far wall's noise scored
-  /// below δ_blob and made them "changed"; real changes there score 16 to 30 key voxels.
-  int min_scored = 3;
-  /// min_scored where either map was splatted from a cloud without a pixel grid (Map::splatted):
-  /// its SDF carries the noise of the points, and static objects in a raw or reconstructed
-  /// cloud scored "changed" from 3-11 key voxels (design.md, "3D verdicts").
-  int min_scored_splatted = 12;
+  /// blob is Unknown (its mean similarity is still reported). Config::verdict_min_scored.
+  int min_scored = Config{}.verdict_min_scored;
+  /// min_scored where either map was splatted from a cloud without a pixel grid
+  /// (Config::verdict_min_scored_splatted; the change detection switches to it).
+  int min_scored_splatted = Config{}.verdict_min_scored_splatted;
 };
+
+/// The ValidationParams of `cfg` (key_min_abs_det, key_max_voxels, verdict_min_scored*).
+ValidationParams validationParams(const Config& cfg);
 
 /// Length of a feature: 3 N_θ N_φ N_λ + 1 (451 with the defaults). Throws planesdf::Error when a
 /// bin count of `cfg` is < 1 or > 64.

@@ -72,18 +72,19 @@ void uniteRegion(ChangeRegion& into, const ChangeRegion& from) {
 }
 
 /// Greedy pairing by shape, best first: the pairs (i, j) of `a` and `b` (not yet `a_used` /
-/// `b_used`) whose shapes (`shape_a(i)`, `shape_b(j)`) lie within kMovedShapeDistance, each
-/// index used once; marks the paired ones used.
+/// `b_used`) whose shapes (`shape_a(i)`, `shape_b(j)`) lie within `max_distance`
+/// (Config::moved_shape_distance), each index used once; marks the paired ones used.
 template <typename ShapeA, typename ShapeB>
 std::vector<std::pair<std::size_t, std::size_t>> pairByShape(std::size_t na, std::size_t nb,
                                                              ShapeA shape_a, ShapeB shape_b,
                                                              std::vector<bool>& a_used,
-                                                             std::vector<bool>& b_used) {
+                                                             std::vector<bool>& b_used,
+                                                             double max_distance) {
   std::vector<std::tuple<double, std::size_t, std::size_t>> near;
   for (std::size_t i = 0; i < na; ++i)
     for (std::size_t j = 0; j < nb; ++j) {
       const double d = shapeDistance(shape_a(i), shape_b(j));
-      if (d < kMovedShapeDistance) near.emplace_back(d, i, j);
+      if (d < max_distance) near.emplace_back(d, i, j);
     }
   std::sort(near.begin(), near.end());
   std::vector<std::pair<std::size_t, std::size_t>> out;
@@ -179,12 +180,11 @@ void mergeDuplicates(std::vector<CandidateChange>& c, std::vector<bool>& used) {
 }
 
 /// Whether the target objects of `c` are part of the event whose other side is `other` (a region
-/// of the target map): `c` landed on them (half of it or more), or they meet `other`.
-bool targetsJoin(const CandidateChange& c, const ChangeRegion& other) {
+/// of the target map): `c` landed on them (`min_overlap` of it or more), or they meet `other`.
+bool targetsJoin(const CandidateChange& c, const ChangeRegion& other, double min_overlap) {
   const ChangeRegion& t = c.target_object;
   return !t.empty() && t.plane_id == other.plane_id &&
-         (c.target_object_overlap >= kReplacedMinOverlap ||
-          columnsOverlap(t.columns, other.columns));
+         (c.target_object_overlap >= min_overlap || columnsOverlap(t.columns, other.columns));
 }
 
 /// A candidate's points under the target objects it lands on (CandidateChange::covered_points),
@@ -237,6 +237,7 @@ namespace {
 /// The candidates of both directions while they are turned into events: which are used, and the
 /// events so far.
 struct Assembly {
+  const Config& cfg;
   std::vector<CandidateChange> removed, added;
   std::vector<bool> r_used, a_used;
   std::vector<ChangeEvent> events;
@@ -286,13 +287,14 @@ void dropStaticInPlace(Assembly& a) {
           added[j].region.plane_id != removed[i].target_plane_id)
         continue;
       if (!columnsOverlap(removed[i].target_columns, added[j].region.columns)) continue;
-      if (shapeDistance(removed[i].region.shape, added[j].region.shape) >= kMovedShapeDistance)
+      if (shapeDistance(removed[i].region.shape, added[j].region.shape) >=
+          a.cfg.moved_shape_distance)
         continue;
       // Coverage shifts a region's centroid by a fraction of its size; a move by the move.
       const ChangeRegion& rr = removed[i].region;
       const ChangeRegion& ar = added[j].region;
       const double size = std::min(rr.bbox.diagonal().norm(), ar.bbox.diagonal().norm());
-      if ((rr.centroid - ar.centroid).norm() > kInPlaceShiftFraction * size) continue;
+      if ((rr.centroid - ar.centroid).norm() > a.cfg.in_place_shift_fraction * size) continue;
       a.r_used[i] = a.a_used[j] = true;
     }
   }
@@ -303,9 +305,9 @@ void dropStaticInPlace(Assembly& a) {
 /// under the other one).
 using Landed = std::vector<std::pair<ChangeRegion, bool>>;
 
-void landedOn(CandidateChange& c, Landed& into) {
+void landedOn(CandidateChange& c, Landed& into, double min_overlap) {
   if (!c.target_object.empty())
-    into.emplace_back(std::move(c.target_object), c.target_object_overlap >= kReplacedMinOverlap);
+    into.emplace_back(std::move(c.target_object), c.target_object_overlap >= min_overlap);
 }
 
 /// Of `regions`, those no Moved event's `side` overlaps and that a move covers by half; the
@@ -345,12 +347,12 @@ void pairMoves(Assembly& a) {
   const auto movedPairs = pairByShape(
       removed.size(), added.size(),
       [&](std::size_t i) -> const ShapeSignature& { return removed[i].region.shape; },
-      [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_skip,
-      a_skip);
+      [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_skip, a_skip,
+      a.cfg.moved_shape_distance);
   for (const auto& [i, j] : movedPairs) {
     a.r_used[i] = a.a_used[j] = true;
-    landedOn(added[j], under_reference);
-    landedOn(removed[i], under_current);
+    landedOn(added[j], under_reference, a.cfg.replaced_min_overlap);
+    landedOn(removed[i], under_current, a.cfg.replaced_min_overlap);
     a.addMoved(std::move(removed[i].region), std::move(added[j].region));
   }
   std::vector<ChangeRegion> left_reference =
@@ -361,7 +363,7 @@ void pairMoves(Assembly& a) {
       left_reference.size(), left_current.size(),
       [&](std::size_t i) -> const ShapeSignature& { return left_reference[i].shape; },
       [&](std::size_t j) -> const ShapeSignature& { return left_current[j].shape; }, ref_taken,
-      cur_taken);
+      cur_taken, a.cfg.moved_shape_distance);
   for (const auto& [i, j] : swapPairs)
     a.addMoved(std::move(left_reference[i]), std::move(left_current[j]));
 }
@@ -385,11 +387,13 @@ void replace(Assembly& a, std::size_t i) {
     appendRegion(e.current, a.added[j].region);
     // The old objects it landed on, whole: where the new object is taller, its blob holds only
     // the part above them (design.md, "Changed objects whole").
-    if (targetsJoin(a.added[j], r.region)) uniteRegion(r.region, a.added[j].target_object);
+    if (targetsJoin(a.added[j], r.region, a.cfg.replaced_min_overlap))
+      uniteRegion(r.region, a.added[j].target_object);
   }
   // Likewise the new objects the old one landed on, whole.
-  if (!e.current.empty() && targetsJoin(r, e.current)) uniteRegion(e.current, r.target_object);
-  if (e.current.empty() && r.target_object_overlap >= kReplacedMinOverlap &&
+  if (!e.current.empty() && targetsJoin(r, e.current, a.cfg.replaced_min_overlap))
+    uniteRegion(e.current, r.target_object);
+  if (e.current.empty() && r.target_object_overlap >= a.cfg.replaced_min_overlap &&
       !r.target_object.empty()) {
     // Another sliver of the same old object, replaced by the same new one: one event.
     const auto same = std::find_if(a.events.begin(), a.events.end(), [&](const ChangeEvent& o) {
@@ -467,7 +471,7 @@ void numberEvents(std::vector<ChangeEvent>& events, const Config& cfg) {
 
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
                                         std::vector<CandidateChange> added, const Config& cfg) {
-  Assembly a;
+  Assembly a{cfg, {}, {}, {}, {}, {}};
   a.r_used.assign(removed.size(), false);
   a.a_used.assign(added.size(), false);
   a.removed = std::move(removed);

@@ -440,9 +440,9 @@ double shapeDistance(const ShapeSignature& a, const ShapeSignature& b) {
   return d;
 }
 
-bool InPlaceMatch::same() const {
-  return target_cells > 0 && overlap >= kInPlaceMinOverlap &&
-         shift <= kInPlaceShiftFraction * size && shape_distance < kMovedShapeDistance;
+bool InPlaceMatch::same(const Config& cfg) const {
+  return target_cells > 0 && overlap >= cfg.in_place_min_overlap &&
+         shift <= cfg.in_place_shift_fraction * size && shape_distance < cfg.moved_shape_distance;
 }
 
 namespace {
@@ -702,16 +702,15 @@ std::map<int, int> objectsInFootprint(const HeightMap& hs, const ObjectMap& os,
 /// transform and the derived sizes.
 struct PairScope {
   PairScope(const PlaneSdf& src_, const PlaneMaps& src_maps_, const PlaneSdf& tgt_,
-            const PlaneMaps& tgt_maps_, const Pose& T_, const Config& cfg_,
-            const DetectOptions& options)
+            const PlaneMaps& tgt_maps_, const Pose& T_, const Config& cfg_)
       : src(src_),
         src_maps(src_maps_),
         tgt(tgt_),
         tgt_maps(tgt_maps_),
         T(T_),
         cfg(cfg_),
-        validation(options.validation),
-        min_scored(options.validation.min_scored) {
+        validation(validationParams(cfg_)),
+        min_scored(cfg_.verdict_min_scored) {
     // Splatted maps need more scored key voxels (design.md, "3D verdicts").
     if (rim_cells > 0) validation.min_scored = validation.min_scored_splatted;
   }
@@ -1014,7 +1013,7 @@ std::optional<CandidateChange> candidateOf(const PairScope& s, const Blob& blob,
   const BlobValidation val = validateVoxels(s, cols.voxels);
   r.validations.push_back(val);
   r.in_place.push_back(sameInPlace(s.hs, blob.cells, s.ht, s.ot, s.T, s.cfg));
-  cand.same_in_place = r.in_place.back().same();
+  cand.same_in_place = r.in_place.back().same(s.cfg);
   const std::optional<Acceptance> a = accept(s, blob, val, cols, st.moved_labels);
   if (!a) return std::nullopt;
   cand.supporting = a->supporting;
@@ -1202,7 +1201,7 @@ std::vector<CandidateChange> comparePlanePair(const PlaneSdf& src, const PlaneMa
   if (refine_inplane)
     r.refinement = refineInPlane(src_maps.heights, src_maps.objects, tgt_maps.heights,
                                  tgt_maps.objects, r.match.T_target_source_local, cfg);
-  const PairScope s(src, src_maps, tgt, tgt_maps, r.match.T_target_source_local, cfg, options);
+  const PairScope s(src, src_maps, tgt, tgt_maps, r.match.T_target_source_local, cfg);
   r.change = detectHeightChange(
       s.hs, s.ht, s.os, s.T, cfg, &tgt.volume,
       HeightTolerance{&src_maps.roughness, &tgt_maps.roughness, s.rim_cells,

@@ -184,9 +184,11 @@ bool columnsOverlap(const std::vector<Eigen::Vector2i>& a, const std::vector<Eig
 /// points (1 cm cells), the one with the stronger 3D evidence stays with the other's points.
 /// Static next: Unknown candidates with same_in_place and no Changed candidate of the other
 /// direction on their footprint, and removed + added Unknown pairs of one shape in one place, are
-/// no event. Then moved pairs (shapeDistance below kMovedShapeDistance, greedy by distance), then
+/// no event. Then moved pairs (shapeDistance below cfg.moved_shape_distance, greedy by distance),
+/// then
 /// replaced (a removed candidate with the added candidates its mapped footprint overlaps; or, with
-/// none, the current objects it lands on when they cover at least kReplacedMinOverlap of it, with
+/// none, the current objects it lands on when they cover at least cfg.replaced_min_overlap of it,
+/// with
 /// the added candidates on those objects), then the rest. Ids 1..N in order of (type, primary
 /// plane id, centroid); confidences from cfg.delta_blob (see ChangeEvent::confidence).
 std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
@@ -197,19 +199,6 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
 /// a table, within δd of it — whose content lies in the band of the plane that kept the target;
 /// comparing it would shift every height by the gap). Result ordered by source id.
 std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> matches);
-
-/// Smallest fraction of a removed footprint lying on current objects for a replaced event that
-/// has no added candidate.
-constexpr double kReplacedMinOverlap = 0.5;
-
-/// Largest shapeDistance of a moved pair (and of the same object in place).
-constexpr double kMovedShapeDistance = 0.3;
-
-/// The same object in place: largest footprint centroid shift, as a fraction of the (smaller)
-/// footprint's box diagonal (sameInPlace; assembleEvents' removed + added Unknown pairs).
-constexpr double kInPlaceShiftFraction = 0.15;
-/// The same object in place: smallest footprint IoU (sameInPlace).
-constexpr double kInPlaceMinOverlap = 0.5;
 
 /// The blob `cells` of source height map `src`, carried into the target grid by T (plane-local
 /// source -> target), against the objects of `tgt_objects` (on `tgt`) those cells land on: their

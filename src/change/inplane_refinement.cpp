@@ -25,17 +25,10 @@ using detail::kPi;
 
 /// A cell index no grid reaches (place's far or non-finite coordinates).
 constexpr int kFarCell = -(1 << 30);
-/// Smallest improvement refineInPlane accepts (see there).
-constexpr int kMinGainCells = 20;
 /// Samples of the coarse search of refineInPlane.
 constexpr std::size_t kCoarseSamples = 6000;
 /// Cells around a sample's initial place where sensitiveFirst looks for differing heights.
 constexpr int kSensitiveRadius = 3;
-constexpr double kMinGainFraction = 0.2;
-/// ... or at least this many standard deviations of the initial mismatch count (a Poisson
-/// count), or with InPlaneSearch::session_drift of the paired (McNemar) test on the cells the
-/// candidate flips: changed objects that mismatch at every T add no noise to that one.
-constexpr double kMinGainSigmas = 3.0;
 
 struct Sample {
   Eigen::Vector2d uv;       ///< source cell centre mapped by the initial T, target-local
@@ -531,10 +524,18 @@ struct Grid {
   int slack = 0;
 };
 
+/// The search window of refineInPlane (Config::inplane_max_shift, inplane_max_yaw_deg) and
+/// whether it looks for the session's drift.
+struct Window {
+  double max_shift = 0.0;
+  double max_yaw_deg = 0.0;
+  bool session_drift = false;
+};
+
 /// Scores the candidates of grids within the search window against `tgt`.
 class GridSearch {
  public:
-  GridSearch(const HeightMap& tgt, const Eigen::Vector2d& pivot, const InPlaneSearch& search,
+  GridSearch(const HeightMap& tgt, const Eigen::Vector2d& pivot, const Window& search,
              const Config& cfg)
       : tgt_(tgt), pivot_(pivot), search_(search), cfg_(cfg) {}
 
@@ -595,30 +596,31 @@ class GridSearch {
 
   const HeightMap& tgt_;
   Eigen::Vector2d pivot_;
-  const InPlaneSearch& search_;
+  const Window& search_;
   const Config& cfg_;
 };
 
 /// The best candidate near the initial T against the best elsewhere: near wins when it is no
 /// worse, and for the session's drift also when it is not clearly worse (the far one's capped
-/// cost lower by less than kMinGainSigmas standard deviations of near's, a Poisson count). A
+/// cost lower by less than inplane_min_gain_sigmas standard deviations of near's, a Poisson
+/// count). A
 /// rotation about a far point can drag one moved object onto its new place while the objects near
 /// that point stay put; on a table of small objects that fits a few cells better than the drift
 /// (design.md, "The session's drift prefers the smaller motion").
 bool nearWins(const std::pair<Cand, Score>& near, const std::pair<Cand, Score>& far,
-              bool session_drift) {
+              bool session_drift, const Config& cfg) {
   if (better(near.second, far.second) ||
       (!better(far.second, near.second) && near.first.motion() < far.first.motion()))
     return true;
-  return session_drift &&
-         near.second.cost - far.second.cost < kMinGainSigmas * std::sqrt(near.second.cost);
+  return session_drift && near.second.cost - far.second.cost <
+                              cfg.inplane_min_gain_sigmas * std::sqrt(near.second.cost);
 }
 
 /// Coarse: 2-cell and 1-degree steps over the whole window on at most kCoarseSamples samples;
 /// fine: 1-cell and yaw_step steps within 2 coarse steps of the coarse best, on all samples.
 /// Returns the fine best and its score. Reorders `set.samples` (sensitiveFirst).
 std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const HeightMap& tgt,
-                                    const Config& cfg, const InPlaneSearch& search, double step,
+                                    const Config& cfg, const Window& search, double step,
                                     double ystep) {
   std::vector<Sample>& samples = set.samples;
   std::vector<Sample> coarse_samples;
@@ -646,7 +648,7 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
   std::pair<Cand, Score> fine = grids.best(placed, groups, coarse, fine_grid);
   if (coarse.du != 0.0 || coarse.dv != 0.0 || coarse.yaw_deg != 0.0) {
     const std::pair<Cand, Score> near = grids.best(placed, groups, Cand{}, fine_grid);
-    if (nearWins(near, fine, search.session_drift)) fine = near;
+    if (nearWins(near, fine, search.session_drift, cfg)) fine = near;
   }
   return fine;
 }
@@ -654,7 +656,7 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
 /// A best candidate on the border of the window (one more step would leave it) is no optimum of
 /// the drift: the cost may still fall outward, which is what dragging the map onto a moved
 /// object's new place does.
-bool onWindowBorder(const Cand& c, const InPlaneSearch& search, double step, double ystep) {
+bool onWindowBorder(const Cand& c, const Window& search, double step, double ystep) {
   const auto onBorder = [](double x, double st, double limit) {
     return std::abs(x) + st > limit + 1e-9;
   };
@@ -663,15 +665,19 @@ bool onWindowBorder(const Cand& c, const InPlaneSearch& search, double step, dou
 }
 
 /// Model selection: keep the initial T unless the evidence is clear. The best candidate must
-/// remove kMinGainCells cells, and kMinGainFraction of the initial mismatches or kMinGainSigmas
-/// of their count or, for the session's drift, of the paired test on the cells it flips
-/// (design.md, "In-plane refinement", "The session's drift passes a paired test").
-bool clearGain(const Flips& f, int initial_mismatches, int best_mismatches, bool session_drift) {
+/// remove inplane_min_gain_cells cells, and inplane_min_gain_fraction of the initial mismatches
+/// or inplane_min_gain_sigmas of their count (a Poisson count) or, for the session's drift, of
+/// the paired (McNemar) test on the cells it flips: changed objects that mismatch at every T add
+/// no noise to that one (design.md, "In-plane refinement", "The session's drift passes a paired
+/// test").
+bool clearGain(const Flips& f, int initial_mismatches, int best_mismatches, bool session_drift,
+               const Config& cfg) {
   const int gain = initial_mismatches - best_mismatches;
-  const bool paired = session_drift && pairedSigmas(f) >= kMinGainSigmas;
-  return gain >= kMinGainCells &&
-         (gain >= kMinGainFraction * initial_mismatches ||
-          gain >= kMinGainSigmas * std::sqrt(initial_mismatches) || paired);
+  const double sigmas = cfg.inplane_min_gain_sigmas;
+  const bool paired = session_drift && pairedSigmas(f) >= sigmas;
+  return gain >= cfg.inplane_min_gain_cells &&
+         (gain >= cfg.inplane_min_gain_fraction * initial_mismatches ||
+          gain >= sigmas * std::sqrt(initial_mismatches) || paired);
 }
 
 /// Applies candidate `c` with score `best` to `out` and to T: Δ = Translate(pivot + shift) *
@@ -720,14 +726,15 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
       src_objects.labels.size() != src.numCells() || tgt_objects.labels.size() != tgt.numCells())
     throw Error("object map", "grid does not match its height map");
   const Pose& T = T_target_source_local;
+  const Window window{cfg.inplane_max_shift, cfg.inplane_max_yaw_deg, search.session_drift};
   const std::size_t observed = src.numObserved();
   if (observed == 0) return out;
   SampleSet set = sampleCells(src, src_objects, tgt, tgt_objects, T, cfg.delta_h, observed,
-                              static_cast<std::size_t>(std::max(1, search.max_cells)));
+                              static_cast<std::size_t>(std::max(1, cfg.inplane_max_cells)));
   out.pivot = set.pivot;
   if (search.session_drift)
     absorbRings(set.samples, set.cells, set.n_groups, src, src_objects, tgt, tgt_objects, T,
-                static_cast<int>(std::ceil(search.max_shift / src.cell_size - 1e-9)));
+                static_cast<int>(std::ceil(window.max_shift / src.cell_size - 1e-9)));
   const Groups groups = groupsOf(set.samples, set.n_groups);
 
   const Score initial =
@@ -737,17 +744,17 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   out.compared_before = out.compared_after = initial.compared;
   out.mismatches_before = out.mismatches_after = initial.mismatches;
   out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
-  if (initial.compared < std::max(1, search.min_compared)) return out;
+  if (initial.compared < std::max(1, cfg.inplane_min_compared)) return out;
 
-  const double step = search.shift_step > 0.0 ? search.shift_step : tgt.cell_size;
-  const double ystep = search.yaw_step_deg > 0.0 ? search.yaw_step_deg : 0.5;
-  const auto [fine, best] = searchWindow(set, groups, tgt, cfg, search, step, ystep);
-  if (!better(best, initial) || onWindowBorder(fine, search, step, ystep)) return out;
+  const double step = cfg.inplane_shift_step > 0.0 ? cfg.inplane_shift_step : tgt.cell_size;
+  const double ystep = cfg.inplane_yaw_step_deg;
+  const auto [fine, best] = searchWindow(set, groups, tgt, cfg, window, step, ystep);
+  if (!better(best, initial) || onWindowBorder(fine, window, step, ystep)) return out;
   const Flips f = flips(set.samples, tgt, set.pivot, fine.yaw_deg * kPi / 180.0,
                         Eigen::Vector2d(fine.du, fine.dv), cfg.delta_h);
   out.fixed = f.fixed;
   out.broken = f.broken;
-  if (!clearGain(f, initial.mismatches, best.mismatches, search.session_drift)) return out;
+  if (!clearGain(f, initial.mismatches, best.mismatches, search.session_drift, cfg)) return out;
   applyCandidate(fine, best, set.pivot, out, T_target_source_local);
   return out;
 }

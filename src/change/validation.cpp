@@ -560,6 +560,15 @@ const char* toString(BlobValidation::Verdict v) {
   return "unknown";
 }
 
+ValidationParams validationParams(const Config& cfg) {
+  ValidationParams p;
+  p.min_abs_det = cfg.key_min_abs_det;
+  p.max_key_voxels = cfg.key_max_voxels;
+  p.min_scored = cfg.verdict_min_scored;
+  p.min_scored_splatted = cfg.verdict_min_scored_splatted;
+  return p;
+}
+
 BlobValidation validateBlob(const TsdfVolume& source, const TsdfVolume& target,
                             const Pose& T_target_source,
                             const std::vector<Eigen::Vector3i>& blob_voxels, const Config& cfg,

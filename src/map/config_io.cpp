@@ -97,6 +97,23 @@ const std::vector<Param>& params() {
       {"splat_noise_reach", &Config::splat_noise_reach},
       {"splat_max_noise", &Config::splat_max_noise},
       {"point_cell", &Config::point_cell},
+      {"inplane_max_shift", &Config::inplane_max_shift},
+      {"inplane_max_yaw_deg", &Config::inplane_max_yaw_deg},
+      {"inplane_shift_step", &Config::inplane_shift_step},
+      {"inplane_yaw_step_deg", &Config::inplane_yaw_step_deg},
+      {"inplane_max_cells", &Config::inplane_max_cells},
+      {"inplane_min_compared", &Config::inplane_min_compared},
+      {"inplane_min_gain_cells", &Config::inplane_min_gain_cells},
+      {"inplane_min_gain_fraction", &Config::inplane_min_gain_fraction},
+      {"inplane_min_gain_sigmas", &Config::inplane_min_gain_sigmas},
+      {"key_min_abs_det", &Config::key_min_abs_det},
+      {"key_max_voxels", &Config::key_max_voxels},
+      {"verdict_min_scored", &Config::verdict_min_scored},
+      {"verdict_min_scored_splatted", &Config::verdict_min_scored_splatted},
+      {"moved_shape_distance", &Config::moved_shape_distance},
+      {"in_place_min_overlap", &Config::in_place_min_overlap},
+      {"in_place_shift_fraction", &Config::in_place_shift_fraction},
+      {"replaced_min_overlap", &Config::replaced_min_overlap},
   };
   return table;
 }
@@ -125,6 +142,35 @@ void setParam(Config& cfg, const Param& p, const nlohmann::json& v, const std::s
         }
       },
       p.member);
+}
+
+/// The ranges of the in-plane refinement's, the 3D verdicts' and the events' tuning.
+void validateChangeTuning(const Config& cfg, const std::string& what) {
+  auto require = [&](bool ok, const std::string& msg) {
+    if (!ok) throw Error(what, msg);
+  };
+  auto in = [](double x, double lo, double hi) { return x >= lo && x <= hi; };
+  require(in(cfg.inplane_max_shift, 0.0, 10.0), "inplane_max_shift must be in [0, 10] m");
+  require(in(cfg.inplane_max_yaw_deg, 0.0, 90.0), "inplane_max_yaw_deg must be in [0, 90]");
+  require(in(cfg.inplane_shift_step, 0.0, 1.0), "inplane_shift_step must be in [0, 1] m");
+  require(in(cfg.inplane_yaw_step_deg, 0.01, 90.0), "inplane_yaw_step_deg must be in [0.01, 90]");
+  require(cfg.inplane_max_cells >= 1, "inplane_max_cells must be >= 1");
+  require(cfg.inplane_min_compared >= 0, "inplane_min_compared must be >= 0");
+  require(cfg.inplane_min_gain_cells >= 0, "inplane_min_gain_cells must be >= 0");
+  require(in(cfg.inplane_min_gain_fraction, 0.0, 1.0),
+          "inplane_min_gain_fraction must be in [0, 1]");
+  require(in(cfg.inplane_min_gain_sigmas, 0.0, 1000.0),
+          "inplane_min_gain_sigmas must be in [0, 1000]");
+  require(in(cfg.key_min_abs_det, 0.0, 1e6), "key_min_abs_det must be in [0, 1e6]");
+  require(cfg.key_max_voxels >= 1 && cfg.key_max_voxels <= 100000,
+          "key_max_voxels must be in [1, 100000]");
+  require(cfg.verdict_min_scored >= 1 && cfg.verdict_min_scored_splatted >= 1,
+          "verdict_min_scored and verdict_min_scored_splatted must be >= 1");
+  require(in(cfg.moved_shape_distance, 0.0, 1000.0), "moved_shape_distance must be in [0, 1000]");
+  require(in(cfg.in_place_min_overlap, 0.0, 1.0), "in_place_min_overlap must be in [0, 1]");
+  require(in(cfg.in_place_shift_fraction, 0.0, 1000.0),
+          "in_place_shift_fraction must be in [0, 1000]");
+  require(in(cfg.replaced_min_overlap, 0.0, 1.0), "replaced_min_overlap must be in [0, 1]");
 }
 
 }  // namespace
@@ -241,6 +287,7 @@ void validateConfig(const Config& cfg, const std::string& what) {
           "event_settle_frames must be in [0, 100000]");
   require(cfg.event_unscored_settle_frames >= 0 && cfg.event_unscored_settle_frames <= 100000,
           "event_unscored_settle_frames must be in [0, 100000]");
+  validateChangeTuning(cfg, what);
   // The stages' own checks, here so that their messages name the config file too.
   try {
     validatePlaneConfig(cfg);

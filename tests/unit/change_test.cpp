@@ -320,11 +320,11 @@ TEST(ShapeDistance, SameObjectIsCloseAndDifferentObjectsAreFar) {
   ShapeSignature b = a;
   b.area *= 1.1;
   b.volume *= 1.1;
-  EXPECT_LT(shapeDistance(a, b), kMovedShapeDistance);
+  EXPECT_LT(shapeDistance(a, b), Config{}.moved_shape_distance);
   ShapeSignature c = a;
   c.max_height = 0.05;
   c.deciles.assign(10, 0.05);
-  EXPECT_GT(shapeDistance(a, c), kMovedShapeDistance);
+  EXPECT_GT(shapeDistance(a, c), Config{}.moved_shape_distance);
   EXPECT_TRUE(std::isinf(shapeDistance(a, ShapeSignature{})));
 }
 
@@ -376,14 +376,14 @@ TEST(SameInPlace, ALegWhoseOutlineDiffersIsTheSameObject) {
   EXPECT_EQ(m.target_cells, 81);
   EXPECT_NEAR(m.overlap, 81.0 / 93.0, 1e-9);  // the 12 streak cells land on the floor
   EXPECT_LT(m.shift, 0.006);                  // < 1 cell: the streak pulls the centroid
-  EXPECT_LT(m.shift, kInPlaceShiftFraction * m.size);
-  EXPECT_LT(m.shape_distance, kMovedShapeDistance);
-  EXPECT_TRUE(m.same());
+  EXPECT_LT(m.shift, Config{}.in_place_shift_fraction * m.size);
+  EXPECT_LT(m.shape_distance, Config{}.moved_shape_distance);
+  EXPECT_TRUE(m.same(cfg));
   // And the other way round (the leg without its streak against the streaked one).
   const InPlaceMatch r =
       sameInPlace(other, objectCells(other), src, computeObjectMap(src, cfg), kId, cfg);
   EXPECT_EQ(r.target_cells, 93);
-  EXPECT_TRUE(r.same());
+  EXPECT_TRUE(r.same(cfg));
 }
 
 TEST(SameInPlace, AMovedReplacedOrNewObjectIsNot) {
@@ -395,29 +395,29 @@ TEST(SameInPlace, AMovedReplacedOrNewObjectIsNot) {
   fill(moved, 31, 25, 9, 9, kLegTop);
   const InPlaceMatch mv = sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), kId, cfg);
   EXPECT_GT(mv.shift, 0.03);
-  EXPECT_FALSE(mv.same());
+  EXPECT_FALSE(mv.same(cfg));
   // The same registration error carried by T instead: in place again.
   Pose T = Pose::Identity();
   T.translation() = Eigen::Vector3d(6 * kCell, 0.0, 0.0);
-  EXPECT_TRUE(sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), T, cfg).same());
+  EXPECT_TRUE(sameInPlace(src, cells, moved, computeObjectMap(moved, cfg), T, cfg).same(cfg));
   // Replaced in place by a lower object (12 cm) of the same footprint: the shape differs.
   HeightMap lower = floorMap();
   fill(lower, 25, 25, 9, 9, 0.12f);
   const InPlaceMatch lo = sameInPlace(src, cells, lower, computeObjectMap(lower, cfg), kId, cfg);
   EXPECT_GT(lo.overlap, 0.5);
-  EXPECT_GT(lo.shape_distance, kMovedShapeDistance);
-  EXPECT_FALSE(lo.same());
+  EXPECT_GT(lo.shape_distance, Config{}.moved_shape_distance);
+  EXPECT_FALSE(lo.same(cfg));
   // Replaced by a much larger object (the leg stood on its footprint): overlap and shape differ.
   HeightMap large = floorMap();
   fill(large, 15, 15, 30, 30, kLegTop);
   const InPlaceMatch lg = sameInPlace(src, cells, large, computeObjectMap(large, cfg), kId, cfg);
   EXPECT_LT(lg.overlap, 0.5);
-  EXPECT_FALSE(lg.same());
+  EXPECT_FALSE(lg.same(cfg));
   // Free floor in the other map (a new object): no target object at all.
   const HeightMap empty = floorMap();
   const InPlaceMatch no = sameInPlace(src, cells, empty, computeObjectMap(empty, cfg), kId, cfg);
   EXPECT_EQ(no.target_cells, 0);
-  EXPECT_FALSE(no.same());
+  EXPECT_FALSE(no.same(cfg));
 }
 
 TEST(SameInPlace, AnObjectJoinedToAPanelIsComparedWithItsPartAboveThePanel) {
@@ -440,17 +440,17 @@ TEST(SameInPlace, AnObjectJoinedToAPanelIsComparedWithItsPartAboveThePanel) {
   const InPlaceMatch m = sameInPlace(src, cells, joined, joined_objects, kId, cfg);
   EXPECT_EQ(m.target_cells, 81);  // the object's part above the panel, not the 2,750 cells
   EXPECT_NEAR(m.overlap, 1.0, 1e-9);
-  EXPECT_TRUE(m.same());
+  EXPECT_TRUE(m.same(cfg));
   // The object gone, the panel left: it lands on structure only, compared with the whole panel.
   const InPlaceMatch gone = sameInPlace(src, cells, panel, computeObjectMap(panel, cfg), kId, cfg);
   EXPECT_EQ(gone.target_cells, 55 * 50);
-  EXPECT_FALSE(gone.same());
+  EXPECT_FALSE(gone.same(cfg));
   // A lower object (12 cm) in its place on the panel: its part differs in shape.
   HeightMap lower = panel;
   fill(lower, 25, 25, 9, 9, 0.12f);
   const InPlaceMatch lo = sameInPlace(src, cells, lower, computeObjectMap(lower, cfg), kId, cfg);
   EXPECT_EQ(lo.target_cells, 81);
-  EXPECT_FALSE(lo.same());
+  EXPECT_FALSE(lo.same(cfg));
 }
 
 /// A table on four 5 x 5 cm legs, seen by the views of a 16-view ring around it on the +x side
@@ -1117,9 +1117,9 @@ TEST(ComparePlanePair, StructureThroughTheBandIsThroughItInBothMaps) {
   const auto column = [&](double u, double v) { return radius(u, v) < 0.035 ? 0.4 : 0.0; };
   const PlaneSdf before = floorWith(bottle);
   Config cfg;
+  cfg.verdict_min_scored = 1 << 20;
   DetectOptions opt;
   opt.keep_stages = true;
-  opt.validation.min_scored = 1 << 20;
   PlaneMatch match;
   match.source_id = match.target_id = 0;
   const PlaneMaps src = computePlaneMaps(before, {before}, cfg);
@@ -1181,10 +1181,10 @@ TEST(ComparePlanePair, AnObjectStandingInsideAChangedSliversOldFootprintReplaced
     return std::abs(u) < 0.06 && std::abs(v) < 0.075 ? 0.04 : 0.0;
   };
   const PlaneSdf before = floorWith(disc);
-  const Config cfg;
+  Config cfg;
+  cfg.verdict_min_scored_splatted = cfg.verdict_min_scored;
   DetectOptions opt;
   opt.keep_stages = true;
-  opt.validation.min_scored_splatted = opt.validation.min_scored;
   PlaneMatch match;
   match.source_id = match.target_id = 0;
   const PlaneMaps src = computePlaneMaps(before, {before}, cfg, nullptr, 1);

@@ -505,6 +505,21 @@ TEST(HeightCompare, TheSliversOfASmallObjectAreOneBlob) {
   EXPECT_EQ(changedBlobs(mask, objects, 0.5, 1).size(), 4u);
 }
 
+TEST(HeightCompare, RefinementKeepsToTheConfiguredWindow) {
+  // A 21 mm drift: found within the default 8 cm window; with a 14 mm window its best lies on
+  // the border (the cost may still fall outward), so T stays.
+  const std::vector<Box> scene{kObject, {8, 40, 6, 12, 0.05f}};
+  const HeightMap src = render(scene);
+  const HeightMap tgt = render(scene, yawShift(0.0, 3 * kCell, 3 * kCell));
+  Config narrow;
+  narrow.inplane_max_shift = 2 * kCell;
+  Pose T_wide = Pose::Identity(), T_narrow = Pose::Identity();
+  EXPECT_TRUE(refineInPlane(src, tgt, T_wide, Config{}).applied);
+  const InPlaneRefinement r = refineInPlane(src, tgt, T_narrow, narrow);
+  EXPECT_FALSE(r.applied);
+  EXPECT_TRUE(T_narrow.isApprox(Pose::Identity()));
+}
+
 TEST(HeightCompare, InPlaneShiftIsRemovedByRefinement) {
   const Config cfg;
   const std::vector<Box> scene{kObject, {8, 40, 6, 12, 0.05f}};
@@ -651,17 +666,16 @@ TEST(HeightCompare, RefinementScoresWholeCellShiftsLikeAnyOtherShift) {
   // Shifts of whole cells are scored by offsetting each yaw's placement of the samples; a step
   // that is no whole number of cells places the samples per candidate. Both find the same drift
   // (2 degrees, 2 cells along u, -1 along v) with the same figures.
-  const Config cfg;
   const std::vector<Box> scene{
       {40, 42, 10, 10, 0.08f}, {44, 8, 8, 14, 0.06f}, {6, 44, 12, 6, 0.1f}};
   const HeightMap src = render(scene);
   const HeightMap tgt = render(scene, yawShift(2.0 * kDeg, 2 * kCell, -kCell));
-  InPlaneSearch whole, general;
-  whole.shift_step = kCell;
-  general.shift_step = kCell * (1.0 + 1e-4);  // 0.7 um more: the same cells, general path
+  Config whole, general;
+  whole.inplane_shift_step = kCell;
+  general.inplane_shift_step = kCell * (1.0 + 1e-4);  // 0.7 um more: the same cells, general path
   Pose T1 = Pose::Identity(), T2 = Pose::Identity();
-  const InPlaneRefinement a = refineInPlane(src, tgt, T1, cfg, whole);
-  const InPlaneRefinement b = refineInPlane(src, tgt, T2, cfg, general);
+  const InPlaneRefinement a = refineInPlane(src, tgt, T1, whole);
+  const InPlaneRefinement b = refineInPlane(src, tgt, T2, general);
   ASSERT_TRUE(a.applied);
   EXPECT_TRUE(b.applied);
   EXPECT_EQ(a.mismatches_before, b.mismatches_before);

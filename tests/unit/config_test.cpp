@@ -5,6 +5,7 @@
 #include "planesdf/config_io.hpp"
 #include "planesdf/error.hpp"
 #include "planesdf/memory.hpp"
+#include "planesdf/validation.hpp"
 #include "test_support.hpp"
 
 namespace {
@@ -108,6 +109,20 @@ TEST(Config, SettleFramesAreInRange) {
   EXPECT_EQ(planesdf::parseConfigJson(R"({"event_unscored_settle_frames": 0})", "x")
                 .event_unscored_settle_frames,
             0);
+}
+
+TEST(Config, ChangeTuningIsInRangeAndReadFromTheFile) {
+  EXPECT_NE(errorOf(R"({"verdict_min_scored": 0})").find("cfg.json: verdict_min_scored"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"in_place_min_overlap": 1.5})").find("in_place_min_overlap must be"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"inplane_yaw_step_deg": 0})").find("inplane_yaw_step_deg must be"),
+            std::string::npos);
+  const Config c = planesdf::parseConfigJson(
+      R"({"moved_shape_distance": 0.25, "inplane_max_shift": 0.05, "key_max_voxels": 50})", "x");
+  EXPECT_DOUBLE_EQ(c.moved_shape_distance, 0.25);
+  EXPECT_DOUBLE_EQ(c.inplane_max_shift, 0.05);
+  EXPECT_EQ(planesdf::validationParams(c).max_key_voxels, 50);
 }
 
 TEST(Config, MemoryLimitIsInRangeAndDefaultsToHalfThePhysicalMemory) {
