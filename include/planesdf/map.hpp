@@ -161,6 +161,10 @@ class Map {
   IntegrateStats integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
                                 bool whole_cloud);
   void keepPoints(const std::vector<Eigen::Vector3f>& points_world, bool deduplicate);
+  /// Splats an unorganised cloud (world frame, with its PCA normals and local noise) into every
+  /// plane volume.
+  IntegrateStats splatCloud(const PointCloud& world, const std::vector<Eigen::Vector3f>& normals,
+                            const std::vector<float>& spread, bool noisy);
   /// Fuses an analysed depth frame into every plane volume.
   IntegrateStats fuseDepth(const DepthFrameAnalysis& analysis, const Pose& camera_to_world,
                            const Config& fuse_cfg);

@@ -333,8 +333,18 @@ void parseViewpoint(const RawHeader& raw, const std::string& name, Header& h) {
   h.viewpoint.linear() = q.toRotationMatrix();
 }
 
-// Resolves FIELDS/SIZE/TYPE/COUNT into columns and the record layout.
-void resolveFields(const RawHeader& raw, const std::string& name, Header& h) {
+// One FIELDS entry with its SIZE, TYPE and COUNT and its byte offset in a record.
+struct Decl {
+  std::string name;
+  Src src;
+  char type;
+  std::size_t size, count, offset;
+};
+
+// The FIELDS/SIZE/TYPE/COUNT declarations, checked, with their offsets; `point_size` receives
+// the record size.
+std::vector<Decl> declarationsOf(const RawHeader& raw, const std::string& name,
+                                 std::size_t& point_size) {
   const std::size_t nf = raw.fields.size();
   if (nf == 0) throw Error(name, "header has no FIELDS");
   auto arity = [&](const std::vector<std::string_view>& v, const char* key) {
@@ -348,12 +358,6 @@ void resolveFields(const RawHeader& raw, const std::string& name, Header& h) {
   arity(raw.types, "TYPE");
   if (!raw.counts.empty()) arity(raw.counts, "COUNT");
 
-  struct Decl {
-    std::string name;
-    Src src;
-    char type;
-    std::size_t size, count, offset;
-  };
   std::vector<Decl> decls;
   std::uint64_t offset = 0;
   std::uint64_t columns = 0;
@@ -389,18 +393,12 @@ void resolveFields(const RawHeader& raw, const std::string& name, Header& h) {
     offset += size * count;
     decls.push_back(std::move(d));
   }
-  h.point_size = offset;
+  point_size = offset;
+  return decls;
+}
 
-  auto find = [&](const char* n) -> int {
-    for (std::size_t f = 0; f < nf; ++f)
-      if (decls[f].name == n) return static_cast<int>(f);
-    return -1;
-  };
-  for (const char* axis : {"x", "y", "z"})
-    if (find(axis) < 0)
-      throw Error(name, std::string("required field '") + axis + "' is missing from FIELDS");
-  h.has_normals = find("normal_x") >= 0 && find("normal_y") >= 0 && find("normal_z") >= 0;
-
+// The columns of the declared fields (padding, the point, the normal, the colour, scalars).
+void columnsOf(const std::vector<Decl>& decls, const std::string& name, Header& h) {
   std::set<std::string> names;
   for (const Decl& d : decls) {
     const std::string what = "field " + quote(d.name) + ": ";
@@ -445,6 +443,22 @@ void resolveFields(const RawHeader& raw, const std::string& name, Header& h) {
       h.columns.push_back(std::move(c));
     }
   }
+}
+
+// Resolves FIELDS/SIZE/TYPE/COUNT into columns and the record layout.
+void resolveFields(const RawHeader& raw, const std::string& name, Header& h) {
+  const std::vector<Decl> decls = declarationsOf(raw, name, h.point_size);
+  auto find = [&](const char* n) -> int {
+    for (std::size_t f = 0; f < decls.size(); ++f)
+      if (decls[f].name == n) return static_cast<int>(f);
+    return -1;
+  };
+  for (const char* axis : {"x", "y", "z"})
+    if (find(axis) < 0)
+      throw Error(name, std::string("required field '") + axis + "' is missing from FIELDS");
+  h.has_normals = find("normal_x") >= 0 && find("normal_y") >= 0 && find("normal_z") >= 0;
+
+  columnsOf(decls, name, h);
 }
 
 Header parseHeader(const std::string& bytes, const std::string& name) {

@@ -453,33 +453,33 @@ void Map::syncPlanes(IntegrateStats& stats) {
   }
 }
 
-void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) {
-  // Only points that can belong to an object are kept: above some plane by at least half the
-  // object threshold and inside its band (plane surfaces themselves never change).
-  const double h_lo = 0.5 * cfg_.h_obj;
-  const bool dedup = deduplicate && cfg_.point_cell > 0.0;
-  // The band test and the cell keys in parallel, each part listing (index, key) of its
-  // contiguous share of the input in order (concatenated in part order, the lists are in input
-  // order); then the order-dependent de-duplication. Lists are reused.
+namespace {
+
+/// (input index, cell key) of the points kept by keepPoints, one list per part of the input.
+using KeptList = std::vector<std::pair<std::uint32_t, std::uint64_t>>;
+
+/// The points of `pts` that may belong to an object (h_lo to fuse_band above some plane), in
+/// `lists`: the band test and the cell keys (`dedup`) in parallel, each part listing its
+/// contiguous share of the input in order, so that the lists concatenated in part order are in
+/// input order. A single-precision pre-test per chunk (bandPretest, 8 points at a time with AVX2)
+/// marks the points that may be in some band; only those take the exact test, and its margin
+/// never drops a point the exact test keeps.
+void bandPoints(const std::vector<Eigen::Vector3f>& pts, const std::vector<PlaneSdf>& planes,
+                const Config& cfg, bool dedup, int threads, std::vector<KeptList>& lists) {
+  const double h_lo = 0.5 * cfg.h_obj;
   const auto n = static_cast<std::ptrdiff_t>(pts.size());
-  const int threads = detail::resolveThreads(cfg_.threads);
   constexpr std::ptrdiff_t kChunk = 512;
   const std::ptrdiff_t chunks = (n + kChunk - 1) / kChunk;
   // A few parts per thread, so a thread the host's work delays holds back little.
   const int parts =
       static_cast<int>(std::max<std::ptrdiff_t>(1, std::min<std::ptrdiff_t>(chunks, 4 * threads)));
-  thread_local std::vector<std::vector<std::pair<std::uint32_t, std::uint64_t>>> scratch;
-  auto& lists = scratch;
   lists.resize(static_cast<std::size_t>(parts));
   for (auto& l : lists) l.clear();
-  // A single-precision pre-test per chunk of points (bandPretest, 8 points at a time with
-  // AVX2) marks the points that may be in some plane's band; only those take the exact test.
-  // Its margin never drops a point the exact test keeps: the kept points are the same.
   std::vector<detail::BandF> bands;
-  for (const auto& ps : planes_) {
+  for (const auto& ps : planes) {
     const Eigen::Vector3f nf = ps.plane.normal.cast<float>();
     bands.push_back({nf.x(), nf.y(), nf.z(), static_cast<float>(ps.plane.offset),
-                     static_cast<float>(h_lo), static_cast<float>(cfg_.fuse_band)});
+                     static_cast<float>(h_lo), static_cast<float>(cfg.fuse_band)});
   }
   detail::parallelChunks(parts, threads, 1, [&](int, long long part, long long) {
     auto& mine = lists[static_cast<std::size_t>(part)];
@@ -490,44 +490,36 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
       const std::ptrdiff_t begin = c * kChunk;
       const int m = static_cast<int>(std::min(kChunk, n - begin));
       const float* xyz = pts[static_cast<std::size_t>(begin)].data();
-      detail::bandPretest(xyz, m, bands, maybe, cfg_.simd);
+      detail::bandPretest(xyz, m, bands, maybe, cfg.simd);
       for (int i = 0; i < m; ++i) {
         if (!maybe[i]) continue;  // NaN (invalid) points fail both comparisons
         const std::size_t idx = static_cast<std::size_t>(begin + i);
         const Eigen::Vector3f& p = pts[idx];
         if (!PointCloud::isValid(p)) continue;
-        for (const auto& ps : planes_) {
+        for (const auto& ps : planes) {
           const double h = ps.plane.signedDistance(p.cast<double>());
-          if (h >= h_lo && h <= cfg_.fuse_band) {
+          if (h >= h_lo && h <= cfg.fuse_band) {
             mine.emplace_back(static_cast<std::uint32_t>(idx),
-                              dedup ? detail::cellKeyOf(p, cfg_.point_cell) : 0);
+                              dedup ? detail::cellKeyOf(p, cfg.point_cell) : 0);
             break;
           }
         }
       }
     }
   });
-  if (!dedup) {
-    std::size_t total = points_.size();
-    for (const auto& list : lists) total += list.size();
-    growPoints(points_, total);
-    for (const auto& list : lists)
-      for (const auto& entry : list) points_.push_back(pts[entry.first]);
-    return;
-  }
-  // De-duplication: a point is kept when its cell holds none yet. The cells are split in two
-  // sets by key, each owned by one thread, which marks the list entries it accepts; the kept
-  // points are then appended in input order (the same points for any thread count). The sets
-  // are large and their lookups miss the cache: each thread requests its slots some points
-  // ahead. A point in the same cell as the set's point before it is a duplicate whatever the
-  // set holds.
-  thread_local std::vector<std::vector<std::uint8_t>> accepted_scratch;
-  auto& accepted = accepted_scratch;
+}
+
+/// De-duplication: marks in `accepted` the list entries whose cell holds no point yet, adding
+/// their cells to `cells`. The cells are split in sets by key, each owned by one thread (the
+/// same entries for any thread count). The sets are large and their lookups miss the cache:
+/// each thread requests its slots some points ahead. A point in the same cell as the set's
+/// point before it is a duplicate whatever the set holds.
+void acceptNewCells(const std::vector<KeptList>& lists, detail::PointCellSets& cells, int threads,
+                    std::vector<std::vector<std::uint8_t>>& accepted) {
   accepted.resize(lists.size());
   for (std::size_t l = 0; l < lists.size(); ++l) accepted[l].assign(lists[l].size(), 0);
   constexpr std::size_t kAhead = 16;
   const int owners = std::min(threads, static_cast<int>(detail::kPointCellSets));
-  detail::PointCellSets& cells = point_cells_.get();
   detail::parallelChunks(owners, owners, 1, [&](int, long long owner, long long) {
     const auto part = static_cast<std::size_t>(owner);
     const auto step = static_cast<std::size_t>(owners);
@@ -549,6 +541,29 @@ void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) 
       }
     }
   });
+}
+
+}  // namespace
+
+void Map::keepPoints(const std::vector<Eigen::Vector3f>& pts, bool deduplicate) {
+  // Only points that can belong to an object are kept: above some plane by at least half the
+  // object threshold and inside its band (plane surfaces themselves never change). The lists
+  // are reused.
+  const bool dedup = deduplicate && cfg_.point_cell > 0.0;
+  const int threads = detail::resolveThreads(cfg_.threads);
+  thread_local std::vector<KeptList> lists;
+  bandPoints(pts, planes_, cfg_, dedup, threads, lists);
+  if (!dedup) {
+    std::size_t total = points_.size();
+    for (const auto& list : lists) total += list.size();
+    growPoints(points_, total);
+    for (const auto& list : lists)
+      for (const auto& entry : list) points_.push_back(pts[entry.first]);
+    return;
+  }
+  // A point is kept when its cell holds none yet; the kept points are appended in input order.
+  thread_local std::vector<std::vector<std::uint8_t>> accepted;
+  acceptNewCells(lists, point_cells_.get(), threads, accepted);
   std::size_t total = points_.size();
   for (const auto& a : accepted)
     total += static_cast<std::size_t>(std::count(a.begin(), a.end(), 1));
@@ -634,6 +649,52 @@ std::vector<PlaneObservation> observationsOf(const PlaneSegmentation& seg) {
   return obs;
 }
 
+/// The splats of one plane volume: points in its band (plane-local), their normals and the free
+/// space each one carves in front of it (design.md, "Noisy clouds").
+struct BandSplats {
+  std::vector<Eigen::Vector3f> points, normals;
+  std::vector<float> front;
+};
+
+/// The points of `world` in the band of the plane whose frame `to_local` maps into, with their
+/// PCA normals. A noisy point's free space reaches `reach_sigma` times its local noise further,
+/// and points noisier than `max_noise` are left out (0: none). Without a sensor the normals are
+/// oriented from the points (orientWithoutSensor, orientUndersides): a slab's top face up to
+/// kMaxSlabThickness above the band tells its underside in the band, then is dropped.
+BandSplats bandSplats(const PointCloud& world, const std::vector<Eigen::Vector3f>& normals,
+                      const std::vector<float>& spread, const Pose& to_local, bool has_sensor,
+                      float reach_sigma, float max_noise, const Config& cfg) {
+  const auto trunc = static_cast<float>(cfg.truncation());
+  const double top = cfg.fuse_band + (has_sensor ? 0.0 : detail::kMaxSlabThickness);
+  const Eigen::Matrix3f R = to_local.linear().cast<float>();
+  const Eigen::Vector3f t = to_local.translation().cast<float>();
+  BandSplats b;
+  for (std::size_t i = 0; i < world.points.size(); ++i) {
+    if (!world.isValid(i) || !normals[i].allFinite()) continue;
+    const Eigen::Vector3f q = R * world.points[i] + t;
+    if (q.z() < -cfg.below_band || q.z() > top) continue;
+    const float noise = std::isfinite(spread[i]) ? spread[i] : 0.0f;
+    if (max_noise > 0.0f && noise > max_noise) continue;
+    b.points.push_back(q);
+    b.normals.push_back(R * normals[i]);
+    b.front.push_back(trunc + std::min(reach_sigma * noise, 2.0f * trunc));
+  }
+  if (has_sensor || b.points.empty()) return b;
+  orientWithoutSensor(b.points, b.normals);
+  orientUndersides(b.points, b.normals, static_cast<float>(cfg.voxel_size));
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < b.points.size(); ++i)
+    if (b.points[i].z() <= cfg.fuse_band) {
+      b.points[kept] = b.points[i];
+      b.front[kept] = b.front[i];
+      b.normals[kept++] = b.normals[i];
+    }
+  b.points.resize(kept);
+  b.normals.resize(kept);
+  b.front.resize(kept);
+  return b;
+}
+
 }  // namespace
 
 IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to_world,
@@ -694,52 +755,7 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
       stats = fuseDepth(analysis, world.sensor_pose, fuse_cfg);
     }
   } else {
-    // No pixel grid: splat each point along its PCA normal.
-    splatted_ = true;
-    const auto trunc = static_cast<float>(cfg_.truncation());
-    const auto reach_sigma = noisy ? static_cast<float>(cfg_.splat_noise_reach) : 0.0f;
-    const auto max_noise = noisy ? static_cast<float>(cfg_.splat_max_noise) * trunc : 0.0f;
-    const bool has_sensor = sensorOrigin(world).has_value();
-    // Without a sensor, a slab's top face just above the band tells its underside in the band
-    // (orientUndersides): gathered, then dropped before fusion.
-    const double top = cfg_.fuse_band + (has_sensor ? 0.0 : detail::kMaxSlabThickness);
-    for (auto& ps : planes_) {
-      const Pose to_local = ps.plane.frame().inverse();
-      const Eigen::Matrix3f R = to_local.linear().cast<float>();
-      const Eigen::Vector3f t = to_local.translation().cast<float>();
-      std::vector<Eigen::Vector3f> p_local, n_local;
-      std::vector<float> front;  // free space in front of a noisy point (design.md)
-      for (std::size_t i = 0; i < world.points.size(); ++i) {
-        if (!world.isValid(i) || !normals[i].allFinite()) continue;
-        const Eigen::Vector3f q = R * world.points[i] + t;
-        if (q.z() < -cfg_.below_band || q.z() > top) continue;
-        const float noise = std::isfinite(spread[i]) ? spread[i] : 0.0f;
-        if (max_noise > 0.0f && noise > max_noise) continue;
-        p_local.push_back(q);
-        n_local.push_back(R * normals[i]);
-        front.push_back(trunc + std::min(reach_sigma * noise, 2.0f * trunc));
-      }
-      if (p_local.empty()) continue;
-      if (!has_sensor) {
-        orientWithoutSensor(p_local, n_local);
-        orientUndersides(p_local, n_local, static_cast<float>(cfg_.voxel_size));
-        std::size_t kept = 0;
-        for (std::size_t i = 0; i < p_local.size(); ++i)
-          if (p_local[i].z() <= cfg_.fuse_band) {
-            p_local[kept] = p_local[i];
-            front[kept] = front[i];
-            n_local[kept++] = n_local[i];
-          }
-        p_local.resize(kept);
-        n_local.resize(kept);
-        front.resize(kept);
-        if (kept == 0) continue;
-      }
-      const IntegrationResult r = integratePointsWithNormals(ps.volume, p_local, n_local,
-                                                             withMemoryLeft(cfg_, memoryBytes()),
-                                                             reach_sigma > 0.0f ? &front : nullptr);
-      addResult(stats, ps.plane.id, r);
-    }
+    stats = splatCloud(world, normals, spread, noisy);
   }
   stats.fusion_ms = msSince(tf);
   stats.tracking_ms = tracking_ms;
@@ -750,6 +766,27 @@ IntegrateStats Map::integrateCloud(const PointCloud& cloud, const Pose& cloud_to
   stats.points_ms = msSince(tp);
   ++frames_;
   stats.milliseconds = msSince(t0);
+  return stats;
+}
+
+IntegrateStats Map::splatCloud(const PointCloud& world, const std::vector<Eigen::Vector3f>& normals,
+                               const std::vector<float>& spread, bool noisy) {
+  // No pixel grid: splat each point along its PCA normal.
+  splatted_ = true;
+  const auto trunc = static_cast<float>(cfg_.truncation());
+  const auto reach_sigma = noisy ? static_cast<float>(cfg_.splat_noise_reach) : 0.0f;
+  const auto max_noise = noisy ? static_cast<float>(cfg_.splat_max_noise) * trunc : 0.0f;
+  const bool has_sensor = sensorOrigin(world).has_value();
+  IntegrateStats stats;
+  for (auto& ps : planes_) {
+    const BandSplats b = bandSplats(world, normals, spread, ps.plane.frame().inverse(), has_sensor,
+                                    reach_sigma, max_noise, cfg_);
+    if (b.points.empty()) continue;
+    const IntegrationResult r = integratePointsWithNormals(ps.volume, b.points, b.normals,
+                                                           withMemoryLeft(cfg_, memoryBytes()),
+                                                           reach_sigma > 0.0f ? &b.front : nullptr);
+    addResult(stats, ps.plane.id, r);
+  }
   return stats;
 }
 

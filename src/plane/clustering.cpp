@@ -204,32 +204,16 @@ std::vector<std::vector<std::uint32_t>> offsetModes(const std::vector<Eigen::Vec
   return groups;
 }
 
-std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::Vector3f>& points,
-                                                       const std::vector<std::uint32_t>& members,
-                                                       const Eigen::Matrix3d& axes, double cell) {
-  if (members.empty()) return {};
-  // Single precision is plenty for cells of centimetres and keeps this pass cheap.
-  const auto ux = static_cast<float>(axes(0, 0)), uy = static_cast<float>(axes(1, 0)),
-             uz = static_cast<float>(axes(2, 0));
-  const auto vx = static_cast<float>(axes(0, 1)), vy = static_cast<float>(axes(1, 1)),
-             vz = static_cast<float>(axes(2, 1));
-  // Project once into flat arrays (the min/max and cell passes then vectorise).
-  const float* xyz = xyzData(points);
-  const std::size_t m = members.size();
-  // Per-thread scratch reused across calls (a frame's inliers are hundreds of thousands of
-  // points: fresh arrays every frame cost page faults). Every entry used is rewritten.
-  thread_local std::vector<float> us_scratch, vs_scratch;
-  thread_local std::vector<int> cell_scratch, grid_scratch;
-  std::vector<float>& us = us_scratch;
-  std::vector<float>& vs = vs_scratch;
-  us.resize(m);
-  vs.resize(m);
-  for (std::size_t i = 0; i < m; ++i) {
-    const float* p = xyz + 3 * members[i];
-    us[i] = ux * p[0] + uy * p[1] + uz * p[2];
-    vs[i] = vx * p[0] + vy * p[1] + vz * p[2];
-  }
-  // Bounds with 8 independent lanes (element-wise min/max vectorise; one running min does not).
+namespace {
+
+struct Bounds2 {
+  float u_lo, u_hi, v_lo, v_hi;
+};
+
+/// Bounds of (us, vs) (non-empty), with 8 independent lanes: element-wise min/max vectorise, one
+/// running min does not.
+Bounds2 boundsOf(const std::vector<float>& us, const std::vector<float>& vs) {
+  const std::size_t m = us.size();
   constexpr std::size_t kLanes = 8;
   std::array<float, kLanes> ulo, uhi, vlo, vhi;
   ulo.fill(us[0]);
@@ -251,28 +235,14 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
     vlo[0] = std::min(vlo[0], vs[i]);
     vhi[0] = std::max(vhi[0], vs[i]);
   }
-  const float u_lo = *std::min_element(ulo.begin(), ulo.end());
-  const float u_hi = *std::max_element(uhi.begin(), uhi.end());
-  const float v_lo = *std::min_element(vlo.begin(), vlo.end());
-  const float v_hi = *std::max_element(vhi.begin(), vhi.end());
-  constexpr double kMaxCells = 16.0e6;
-  const double area_cells = ((u_hi - u_lo) / cell + 1.0) * ((v_hi - v_lo) / cell + 1.0);
-  if (area_cells > kMaxCells) cell *= std::sqrt(area_cells / kMaxCells);
-  const int nu = static_cast<int>((u_hi - u_lo) / cell) + 1;
-  const int nv = static_cast<int>((v_hi - v_lo) / cell) + 1;
-  const auto inv = static_cast<float>(1.0 / cell);
-  std::vector<int>& cell_of = cell_scratch;
-  cell_of.resize(m);
-  for (std::size_t i = 0; i < m; ++i) {
-    const int cu = std::min(nu - 1, static_cast<int>((us[i] - u_lo) * inv));
-    const int cv = std::min(nv - 1, static_cast<int>((vs[i] - v_lo) * inv));
-    cell_of[i] = cv * nu + cu;
-  }
-  std::vector<int>& grid = grid_scratch;  // -1 empty, -2 occupied, else label
-  grid.assign(static_cast<std::size_t>(nu) * nv, -1);
-  for (int c : cell_of) grid[c] = -2;
+  return {*std::min_element(ulo.begin(), ulo.end()), *std::max_element(uhi.begin(), uhi.end()),
+          *std::min_element(vlo.begin(), vlo.end()), *std::max_element(vhi.begin(), vhi.end())};
+}
+
+/// Labels the 8-connected components of the occupied cells (-2) of an nu x nv grid 0, 1, ... in
+/// scan order; returns their number.
+int labelComponents(std::vector<int>& grid, int nu, int nv) {
   int labels = 0;
-  std::vector<std::size_t> sizes;
   std::vector<int> stack;
   for (std::size_t start = 0; start < grid.size(); ++start) {
     if (grid[start] != -2) continue;
@@ -298,6 +268,54 @@ std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::
     }
     ++labels;
   }
+  return labels;
+}
+
+}  // namespace
+
+std::vector<std::vector<std::uint32_t>> connectedParts(const std::vector<Eigen::Vector3f>& points,
+                                                       const std::vector<std::uint32_t>& members,
+                                                       const Eigen::Matrix3d& axes, double cell) {
+  if (members.empty()) return {};
+  // Single precision is plenty for cells of centimetres and keeps this pass cheap.
+  const auto ux = static_cast<float>(axes(0, 0)), uy = static_cast<float>(axes(1, 0)),
+             uz = static_cast<float>(axes(2, 0));
+  const auto vx = static_cast<float>(axes(0, 1)), vy = static_cast<float>(axes(1, 1)),
+             vz = static_cast<float>(axes(2, 1));
+  // Project once into flat arrays (the min/max and cell passes then vectorise).
+  const float* xyz = xyzData(points);
+  const std::size_t m = members.size();
+  // Per-thread scratch reused across calls (a frame's inliers are hundreds of thousands of
+  // points: fresh arrays every frame cost page faults). Every entry used is rewritten.
+  thread_local std::vector<float> us_scratch, vs_scratch;
+  thread_local std::vector<int> cell_scratch, grid_scratch;
+  std::vector<float>& us = us_scratch;
+  std::vector<float>& vs = vs_scratch;
+  us.resize(m);
+  vs.resize(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    const float* p = xyz + 3 * members[i];
+    us[i] = ux * p[0] + uy * p[1] + uz * p[2];
+    vs[i] = vx * p[0] + vy * p[1] + vz * p[2];
+  }
+  const auto [u_lo, u_hi, v_lo, v_hi] = boundsOf(us, vs);
+  constexpr double kMaxCells = 16.0e6;
+  const double area_cells = ((u_hi - u_lo) / cell + 1.0) * ((v_hi - v_lo) / cell + 1.0);
+  if (area_cells > kMaxCells) cell *= std::sqrt(area_cells / kMaxCells);
+  const int nu = static_cast<int>((u_hi - u_lo) / cell) + 1;
+  const int nv = static_cast<int>((v_hi - v_lo) / cell) + 1;
+  const auto inv = static_cast<float>(1.0 / cell);
+  std::vector<int>& cell_of = cell_scratch;
+  cell_of.resize(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    const int cu = std::min(nu - 1, static_cast<int>((us[i] - u_lo) * inv));
+    const int cv = std::min(nv - 1, static_cast<int>((vs[i] - v_lo) * inv));
+    cell_of[i] = cv * nu + cu;
+  }
+  std::vector<int>& grid = grid_scratch;  // -1 empty, -2 occupied, else label
+  grid.assign(static_cast<std::size_t>(nu) * nv, -1);
+  for (int c : cell_of) grid[c] = -2;
+  const int labels = labelComponents(grid, nu, nv);
   if (labels == 1) return {members};
   std::vector<std::size_t> count(static_cast<std::size_t>(labels), 0);
   for (int c : cell_of) ++count[grid[c]];
