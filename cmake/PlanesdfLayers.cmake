@@ -30,6 +30,8 @@ function(_planesdf_header_stage header out)
     set(_s adapters)
   elseif(_h MATCHES "^(types|config|error|memory)\\.hpp$")
     set(_s base)
+  elseif(_h STREQUAL "detail/tsdf_blocks.hpp")
+    set(_s tsdf)  # internal storage behind tsdf.hpp
   elseif(_h MATCHES "^(plane|tsdf|map|height_map|sim)\\.hpp$")
     string(REGEX REPLACE "\\.hpp$" "" _s "${_h}")
   elseif(_h STREQUAL "config_io.hpp")

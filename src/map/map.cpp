@@ -375,7 +375,7 @@ bool detail::CellBitSet::insert(std::uint64_t key) {
   const std::uint64_t brick = brickOf(key);
   if (brick != last_brick_) {
     std::uint32_t slot = bricks_.find(brick);
-    if (slot == BlockHashMap::kNotFound) {
+    if (slot == detail::BlockHashMap::kNotFound) {
       masks_.push_back({});  // first: a failed insert below leaves only an unused mask
       slot = static_cast<std::uint32_t>(masks_.size() - 1);
       bricks_.insert(brick, slot);

@@ -61,7 +61,7 @@ class CellBitSet {
   }
 
  private:
-  BlockHashMap bricks_;  ///< brick key -> index into masks_
+  detail::BlockHashMap bricks_;  ///< brick key -> index into masks_
   std::vector<std::array<std::uint64_t, 8>, LargeAllocator<std::array<std::uint64_t, 8>>> masks_;
   std::size_t cells_ = 0;
   std::uint64_t last_brick_ = detail::kEmptyBlockKey;  ///< the brick of the previous insert ...

@@ -33,7 +33,7 @@ std::vector<Eigen::Vector3i> allocateKeys(TsdfVolume& vol,
   std::vector<Eigen::Vector3i> out;
   out.reserve(keys.size());
   for (const std::uint64_t k : keys) {
-    out.push_back(unpackBlockKey(k));
+    out.push_back(detail::unpackBlockKey(k));
     vol.allocateBlock(out.back());
   }
   return out;

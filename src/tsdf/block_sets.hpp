@@ -111,11 +111,11 @@ class NewBlockCollector {
     if (i >= 0) {
       if (grid_.known(i)) return;
       grid_.mark(i);
-      keys_.push_back(packBlockKey(b));
+      keys_.push_back(detail::packBlockKey(b));
       return;
     }
     if (!blockIndexInRange(b)) return;
-    const std::uint64_t key = packBlockKey(b);
+    const std::uint64_t key = detail::packBlockKey(b);
     if (recent_.seen(key) || vol_.blockSlot(b) >= 0) return;
     if (set_.insert(key, 0).second) keys_.push_back(key);
   }
@@ -133,7 +133,8 @@ class NewBlockCollector {
             continue;
           }
           if (!blockIndexInRange(b)) return false;
-          if (vol_.blockSlot(b) < 0 && set_.find(packBlockKey(b)) == BlockHashMap::kNotFound)
+          if (vol_.blockSlot(b) < 0 &&
+              set_.find(detail::packBlockKey(b)) == detail::BlockHashMap::kNotFound)
             return false;
         }
     return true;
@@ -143,7 +144,7 @@ class NewBlockCollector {
   const TsdfVolume& vol_;
   BlockGrid& grid_;
   RecentKeys recent_;
-  BlockHashMap set_;
+  detail::BlockHashMap set_;
   std::vector<std::uint64_t> keys_;
 };
 

@@ -98,7 +98,7 @@ IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
   // Pass 1: splats, the blocks each may touch (local block ids), and allocation.
   std::vector<Splat> splats;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> touches;  // (local block id, splat)
-  BlockHashMap ids;
+  detail::BlockHashMap ids;
   std::vector<std::uint64_t> keys;
   for (std::size_t i = 0; i < points_local.size(); ++i) {
     Splat s;
@@ -112,7 +112,7 @@ IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
     for (int z = blo.z(); z <= bhi.z(); ++z)
       for (int y = blo.y(); y <= bhi.y(); ++y)
         for (int x = blo.x(); x <= bhi.x(); ++x) {
-          const std::uint64_t key = packBlockKey(Eigen::Vector3i(x, y, z));
+          const std::uint64_t key = detail::packBlockKey(Eigen::Vector3i(x, y, z));
           const auto [id, inserted] = ids.insert(key, static_cast<std::uint32_t>(keys.size()));
           if (inserted) keys.push_back(key);
           touches.emplace_back(id, si);
@@ -122,14 +122,14 @@ IntegrationResult integratePointsWithNormals(TsdfVolume& vol,
   {
     std::vector<std::vector<std::uint64_t>> fresh(1);
     for (const std::uint64_t k : keys)
-      if (vol.blockSlot(unpackBlockKey(k)) < 0) fresh[0].push_back(k);
+      if (vol.blockSlot(detail::unpackBlockKey(k)) < 0) fresh[0].push_back(k);
     res.allocated_blocks = allocateKeys(vol, fresh, cfg);
   }
 
   // Block order = slot order; per block, its splats in input order (counting sort).
   std::vector<std::pair<std::uint32_t, std::uint32_t>> order(keys.size());  // (slot, id)
   for (std::size_t id = 0; id < keys.size(); ++id)
-    order[id] = {static_cast<std::uint32_t>(vol.blockSlot(unpackBlockKey(keys[id]))),
+    order[id] = {static_cast<std::uint32_t>(vol.blockSlot(detail::unpackBlockKey(keys[id]))),
                  static_cast<std::uint32_t>(id)};
   std::sort(order.begin(), order.end());
   std::vector<std::uint32_t> start(keys.size() + 1, 0), list(touches.size());

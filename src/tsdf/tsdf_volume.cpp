@@ -23,9 +23,11 @@ constexpr std::size_t kMaxSlabBlocks = detail::kHugePageBytes / sizeof(TsdfBlock
 
 }  // namespace
 
-// ---- BlockHashMap ---------------------------------------------------------------------------
+// ---- detail::BlockHashMap
+// ---------------------------------------------------------------------------
 
-std::pair<std::uint32_t, bool> BlockHashMap::insert(std::uint64_t key, std::uint32_t value) {
+std::pair<std::uint32_t, bool> detail::BlockHashMap::insert(std::uint64_t key,
+                                                            std::uint32_t value) {
   if ((size_ + 1) * 2 > keys_.size()) rehash(std::max<std::size_t>(16, keys_.size() * 2));
   for (std::size_t i = detail::mixBlockKey(key) & mask_;; i = (i + 1) & mask_) {
     const std::uint64_t k = keys_[i];
@@ -39,7 +41,7 @@ std::pair<std::uint32_t, bool> BlockHashMap::insert(std::uint64_t key, std::uint
   }
 }
 
-bool BlockHashMap::insertKey(std::uint64_t key) {
+bool detail::BlockHashMap::insertKey(std::uint64_t key) {
   if ((size_ + 1) * 2 > keys_.size()) rehash(std::max<std::size_t>(16, keys_.size() * 2));
   for (std::size_t i = detail::mixBlockKey(key) & mask_;; i = (i + 1) & mask_) {
     const std::uint64_t k = keys_[i];
@@ -53,22 +55,22 @@ bool BlockHashMap::insertKey(std::uint64_t key) {
   }
 }
 
-void BlockHashMap::clear() {
+void detail::BlockHashMap::clear() {
   std::fill(keys_.begin(), keys_.end(), kEmptyKey);
   size_ = 0;
 }
 
-void BlockHashMap::reserve(std::size_t n) {
+void detail::BlockHashMap::reserve(std::size_t n) {
   std::size_t cap = 16;
   while (cap < 2 * n) cap *= 2;
   if (cap > keys_.size()) rehash(cap);
 }
 
-std::size_t BlockHashMap::memoryBytes() const {
+std::size_t detail::BlockHashMap::memoryBytes() const {
   return keys_.capacity() * sizeof(std::uint64_t) + values_.capacity() * sizeof(std::uint32_t);
 }
 
-void BlockHashMap::rehash(std::size_t capacity) {
+void detail::BlockHashMap::rehash(std::size_t capacity) {
   const auto old_keys = std::move(keys_);
   const auto old_values = std::move(values_);
   keys_.assign(capacity, kEmptyKey);
@@ -206,10 +208,10 @@ TsdfBlock& TsdfVolume::allocateBlock(const Eigen::Vector3i& b, bool* created) {
     throw Error("", "tsdf volume: block index (" + std::to_string(b.x()) + ", " +
                         std::to_string(b.y()) + ", " + std::to_string(b.z()) +
                         ") is out of the representable range");
-  const std::uint64_t key = packBlockKey(b);
+  const std::uint64_t key = detail::packBlockKey(b);
   const std::uint32_t found = map_.find(key);
-  if (created) *created = found == BlockHashMap::kNotFound;
-  if (found != BlockHashMap::kNotFound) return *blocks_[found];
+  if (created) *created = found == detail::BlockHashMap::kNotFound;
+  if (found != detail::BlockHashMap::kNotFound) return *blocks_[found];
   // Everything that can throw happens before the block is entered anywhere.
   if (blocks_.size() == blocks_.capacity())
     blocks_.reserve(std::max<std::size_t>(64, 2 * blocks_.capacity()));
@@ -262,7 +264,7 @@ void TsdfVolume::clear() {
   indices_.clear();
   indices_.shrink_to_fit();
   slabs_.clear();
-  map_ = BlockHashMap();
+  map_ = detail::BlockHashMap();
   lo_.setZero();
   hi_.setConstant(-1);
   ++revision_;

@@ -225,7 +225,7 @@ TEST(TsdfVolume, BlockLayoutAndGlobalIndexing) {
   for (const Eigen::Vector3i& k :
        {Eigen::Vector3i(-(1 << 20), (1 << 20) - 1, 0), Eigen::Vector3i(5, -7, 123456)}) {
     EXPECT_TRUE(blockIndexInRange(k));
-    EXPECT_EQ(unpackBlockKey(packBlockKey(k)), k);
+    EXPECT_EQ(detail::unpackBlockKey(detail::packBlockKey(k)), k);
   }
   EXPECT_FALSE(blockIndexInRange(Eigen::Vector3i(1 << 20, 0, 0)));
   EXPECT_THROW(vol.allocateBlock(Eigen::Vector3i(1 << 20, 0, 0)), Error);
