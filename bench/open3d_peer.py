@@ -59,9 +59,9 @@ def read_tum(folder):
     return k, frames
 
 
-def open3d_ms(folder):
-    """Median ms per frame of Open3D's VoxelBlockGrid integration of the whole scene."""
-    import numpy as np
+def fuse_frames(folder, voxel, block_count, timed=None):
+    """Open3D's tensor VoxelBlockGrid (CPU) of the frames of a TUM folder, whole scene; appends
+    each frame's integration time (ms, frame loading not included) to `timed` when given."""
     import open3d as o3d
     import open3d.core as o3c
 
@@ -71,10 +71,9 @@ def open3d_ms(folder):
                            o3c.Dtype.Float64)
     vbg = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32),
-        attr_channels=((1), (1)), voxel_size=VOXEL, block_resolution=8, block_count=100000,
-        device=device)
+        attr_channels=((1), (1)), voxel_size=voxel, block_resolution=8,
+        block_count=block_count, device=device)
     scale = k.get("depth_scale", 5000.0)
-    times = []
     for path, extrinsic in frames:
         depth = o3d.t.io.read_image(path).to(device)
         ext = o3c.Tensor(extrinsic, o3c.Dtype.Float64)
@@ -82,8 +81,16 @@ def open3d_ms(folder):
         blocks = vbg.compute_unique_block_coordinates(depth, intrinsic, ext, scale, DEPTH_MAX,
                                                       TRUNC_VOXELS)
         vbg.integrate(blocks, depth, intrinsic, ext, scale, DEPTH_MAX, TRUNC_VOXELS)
-        times.append((time.perf_counter() - t0) * 1000.0)
-    return statistics.median(times), len(frames)
+        if timed is not None:
+            timed.append((time.perf_counter() - t0) * 1000.0)
+    return vbg
+
+
+def open3d_ms(folder):
+    """Median ms per frame of Open3D's VoxelBlockGrid integration of the whole scene."""
+    times = []
+    fuse_frames(folder, VOXEL, 100000, times)
+    return statistics.median(times), len(times)
 
 
 def planesdf_ms(binary, folder):

@@ -21,29 +21,12 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from open3d_peer import DEPTH_MAX, TRUNC_VOXELS, read_tum  # noqa: E402
+from open3d_peer import DEPTH_MAX, TRUNC_VOXELS, fuse_frames, read_tum  # noqa: E402
 
 
 def fuse_points(folder, voxel):
     """Open3D's tensor VoxelBlockGrid of the frames, as a point cloud with normals."""
-    import open3d as o3d
-    import open3d.core as o3c
-
-    k, frames = read_tum(folder)
-    device = o3c.Device("CPU:0")
-    intrinsic = o3c.Tensor([[k["fx"], 0, k["cx"]], [0, k["fy"], k["cy"]], [0, 0, 1]],
-                           o3c.Dtype.Float64)
-    vbg = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32),
-        attr_channels=((1), (1)), voxel_size=voxel, block_resolution=8, block_count=400000,
-        device=device)
-    scale = k.get("depth_scale", 5000.0)
-    for path, extrinsic in frames:
-        depth = o3d.t.io.read_image(path).to(device)
-        ext = o3c.Tensor(extrinsic, o3c.Dtype.Float64)
-        blocks = vbg.compute_unique_block_coordinates(depth, intrinsic, ext, scale, DEPTH_MAX,
-                                                      TRUNC_VOXELS)
-        vbg.integrate(blocks, depth, intrinsic, ext, scale, DEPTH_MAX, TRUNC_VOXELS)
+    vbg = fuse_frames(folder, voxel, 400000)
     return vbg.extract_point_cloud(weight_threshold=3.0, estimated_point_number=8000000)
 
 
