@@ -254,7 +254,7 @@ struct Config {
   /// points' noise, and static objects scored "changed" from 3-11 key voxels.
   int verdict_min_scored_splatted = 12;
 
-  // --- events (design.md, "Events") ----------------------------------------------------------
+  // --- events (design.md, "Moved and replaced") --------------------------------------------------
   /// Two footprints are the same object when their shapeDistance is below this: a removed and an
   /// added one pair into a move, a blob and the other map's object under it are "in place".
   double moved_shape_distance = 0.3;
