@@ -603,10 +603,9 @@ class GridSearch {
 /// The best candidate near the initial T against the best elsewhere: near wins when it is no
 /// worse, and for the session's drift also when it is not clearly worse (the far one's capped
 /// cost lower by less than inplane_min_gain_sigmas standard deviations of near's, a Poisson
-/// count). A
-/// rotation about a far point can drag one moved object onto its new place while the objects near
-/// that point stay put; on a table of small objects that fits a few cells better than the drift
-/// (design.md, "The session's drift prefers the smaller motion").
+/// count). A rotation about a far point can drag one moved object onto its new place while the
+/// objects near that point stay put; on a table of small objects that fits a few cells better
+/// than the drift (design.md, "The session's drift prefers the smaller motion").
 bool nearWins(const std::pair<Cand, Score>& near, const std::pair<Cand, Score>& far,
               bool session_drift, const Config& cfg) {
   if (better(near.second, far.second) ||
