@@ -709,8 +709,7 @@ struct PairScope {
         tgt_maps(tgt_maps_),
         T(T_),
         cfg(cfg_),
-        validation(validationParams(cfg_)),
-        min_scored(cfg_.verdict_min_scored) {
+        validation(validationParams(cfg_)) {
     // Splatted maps need more scored key voxels (design.md, "3D verdicts").
     if (rim_cells > 0) validation.min_scored = validation.min_scored_splatted;
   }
@@ -726,7 +725,6 @@ struct PairScope {
   const Pose T;
   const Config& cfg;
   ValidationParams validation;
-  int min_scored;  ///< the unsplatted minimum: some 3D evidence for a small move or a sliver
   /// Nonzero when either map was splatted (surfaceRimCells).
   const int rim_cells = std::max(src_maps.rim_cells, tgt_maps.rim_cells);
   const double vs = src.volume.voxelSize();
@@ -895,8 +893,9 @@ std::optional<Acceptance> accept(const PairScope& s, const Blob& blob, const Blo
     return std::nullopt;
   // In a splatted map, a sliver whose whole object fits the other map shifted by more than a rim
   // is a small move of that object (design.md, "Small moves"). A move's crescents are narrow
-  // and score few key voxels: it needs the depth-fused count of them, dissimilar.
-  const bool some_3d = val.scored >= s.min_scored && val.mean_similarity < cfg.delta_blob;
+  // and score few key voxels: it needs the depth-fused count of them (verdict_min_scored, not
+  // the splatted one), dissimilar.
+  const bool some_3d = val.scored >= cfg.verdict_min_scored && val.mean_similarity < cfg.delta_blob;
   const bool shifted = blob.partial && s.rim_width > 0 && some_3d &&
                        isSmallMove(fitObject(s.hs, s.os, blob.object_labels, s.ht, s.T,
                                              s.large_cells, s.small_move_cells, cfg.h_obj),

@@ -524,20 +524,11 @@ struct Grid {
   int slack = 0;
 };
 
-/// The search window of refineInPlane (Config::inplane_max_shift, inplane_max_yaw_deg) and
-/// whether it looks for the session's drift.
-struct Window {
-  double max_shift = 0.0;
-  double max_yaw_deg = 0.0;
-  bool session_drift = false;
-};
-
 /// Scores the candidates of grids within the search window against `tgt`.
 class GridSearch {
  public:
-  GridSearch(const HeightMap& tgt, const Eigen::Vector2d& pivot, const Window& search,
-             const Config& cfg)
-      : tgt_(tgt), pivot_(pivot), search_(search), cfg_(cfg) {}
+  GridSearch(const HeightMap& tgt, const Eigen::Vector2d& pivot, const Config& cfg)
+      : tgt_(tgt), pivot_(pivot), cfg_(cfg) {}
 
   /// The best candidate of the grid centred on `c` (ties keep the smaller motion) and its score.
   std::pair<Cand, Score> best(YawPlacements& placed, const Groups& groups, const Cand& c,
@@ -563,9 +554,9 @@ class GridSearch {
       for (int iv = -g.shifts; iv <= g.shifts; ++iv)
         for (int iu = -g.shifts; iu <= g.shifts; ++iu) {
           Cand k{c.du + iu * g.step, c.dv + iv * g.step, c.yaw_deg + iy * g.yaw_step};
-          if (std::abs(k.du) > search_.max_shift + 1e-9 ||
-              std::abs(k.dv) > search_.max_shift + 1e-9 ||
-              std::abs(k.yaw_deg) > search_.max_yaw_deg + 1e-9)
+          if (std::abs(k.du) > cfg_.inplane_max_shift + 1e-9 ||
+              std::abs(k.dv) > cfg_.inplane_max_shift + 1e-9 ||
+              std::abs(k.yaw_deg) > cfg_.inplane_max_yaw_deg + 1e-9)
             continue;
           cands.push_back(k);
         }
@@ -596,7 +587,6 @@ class GridSearch {
 
   const HeightMap& tgt_;
   Eigen::Vector2d pivot_;
-  const Window& search_;
   const Config& cfg_;
 };
 
@@ -619,7 +609,7 @@ bool nearWins(const std::pair<Cand, Score>& near, const std::pair<Cand, Score>& 
 /// fine: 1-cell and yaw_step steps within 2 coarse steps of the coarse best, on all samples.
 /// Returns the fine best and its score. Reorders `set.samples` (sensitiveFirst).
 std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const HeightMap& tgt,
-                                    const Config& cfg, const Window& search, double step,
+                                    const Config& cfg, bool session_drift, double step,
                                     double ystep) {
   std::vector<Sample>& samples = set.samples;
   std::vector<Sample> coarse_samples;
@@ -633,12 +623,13 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
   const double cstep = 2.0 * step, cystep = std::max(1.0, ystep);
   YawPlacements coarse_placed{&coarse_samples, arraysOf(coarse_samples), {}};
   YawPlacements placed{&samples, arraysOf(samples), {}};
-  const GridSearch grids(tgt, set.pivot, search, cfg);
+  const GridSearch grids(tgt, set.pivot, cfg);
   const Cand coarse =
       grids
           .best(coarse_placed, groupsOf(coarse_samples, set.n_groups), Cand{},
-                Grid{static_cast<int>(std::floor(search.max_shift / cstep + 1e-9)), cstep,
-                     static_cast<int>(std::floor(search.max_yaw_deg / cystep + 1e-9)), cystep, 1})
+                Grid{static_cast<int>(std::floor(cfg.inplane_max_shift / cstep + 1e-9)), cstep,
+                     static_cast<int>(std::floor(cfg.inplane_max_yaw_deg / cystep + 1e-9)), cystep,
+                     1})
           .first;
   // Fine search around the coarse best and, when that lies elsewhere, around the initial T too:
   // the coarse costs (one-cell slack) are shallow where a table holds few static objects, and
@@ -647,7 +638,7 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
   std::pair<Cand, Score> fine = grids.best(placed, groups, coarse, fine_grid);
   if (coarse.du != 0.0 || coarse.dv != 0.0 || coarse.yaw_deg != 0.0) {
     const std::pair<Cand, Score> near = grids.best(placed, groups, Cand{}, fine_grid);
-    if (nearWins(near, fine, search.session_drift, cfg)) fine = near;
+    if (nearWins(near, fine, session_drift, cfg)) fine = near;
   }
   return fine;
 }
@@ -655,12 +646,13 @@ std::pair<Cand, Score> searchWindow(SampleSet& set, const Groups& groups, const 
 /// A best candidate on the border of the window (one more step would leave it) is no optimum of
 /// the drift: the cost may still fall outward, which is what dragging the map onto a moved
 /// object's new place does.
-bool onWindowBorder(const Cand& c, const Window& search, double step, double ystep) {
+bool onWindowBorder(const Cand& c, const Config& cfg, double step, double ystep) {
   const auto onBorder = [](double x, double st, double limit) {
     return std::abs(x) + st > limit + 1e-9;
   };
-  return onBorder(c.du, step, search.max_shift) || onBorder(c.dv, step, search.max_shift) ||
-         onBorder(c.yaw_deg, ystep, search.max_yaw_deg);
+  return onBorder(c.du, step, cfg.inplane_max_shift) ||
+         onBorder(c.dv, step, cfg.inplane_max_shift) ||
+         onBorder(c.yaw_deg, ystep, cfg.inplane_max_yaw_deg);
 }
 
 /// Model selection: keep the initial T unless the evidence is clear. The best candidate must
@@ -725,7 +717,6 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
       src_objects.labels.size() != src.numCells() || tgt_objects.labels.size() != tgt.numCells())
     throw Error("object map", "grid does not match its height map");
   const Pose& T = T_target_source_local;
-  const Window window{cfg.inplane_max_shift, cfg.inplane_max_yaw_deg, search.session_drift};
   const std::size_t observed = src.numObserved();
   if (observed == 0) return out;
   SampleSet set = sampleCells(src, src_objects, tgt, tgt_objects, T, cfg.delta_h, observed,
@@ -733,7 +724,7 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   out.pivot = set.pivot;
   if (search.session_drift)
     absorbRings(set.samples, set.cells, set.n_groups, src, src_objects, tgt, tgt_objects, T,
-                static_cast<int>(std::ceil(window.max_shift / src.cell_size - 1e-9)));
+                static_cast<int>(std::ceil(cfg.inplane_max_shift / src.cell_size - 1e-9)));
   const Groups groups = groupsOf(set.samples, set.n_groups);
 
   const Score initial =
@@ -747,8 +738,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
 
   const double step = cfg.inplane_shift_step > 0.0 ? cfg.inplane_shift_step : tgt.cell_size;
   const double ystep = cfg.inplane_yaw_step_deg;
-  const auto [fine, best] = searchWindow(set, groups, tgt, cfg, window, step, ystep);
-  if (!better(best, initial) || onWindowBorder(fine, window, step, ystep)) return out;
+  const auto [fine, best] = searchWindow(set, groups, tgt, cfg, search.session_drift, step, ystep);
+  if (!better(best, initial) || onWindowBorder(fine, cfg, step, ystep)) return out;
   const Flips f = flips(set.samples, tgt, set.pivot, fine.yaw_deg * kPi / 180.0,
                         Eigen::Vector2d(fine.du, fine.dv), cfg.delta_h);
   out.fixed = f.fixed;
