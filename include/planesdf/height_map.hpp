@@ -11,6 +11,7 @@
 /// is row-major, x fastest: cells[x + width * y].
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include <cmath>
 #include <cstddef>
@@ -119,6 +120,13 @@ constexpr std::size_t kMaxHeightMapCells = std::size_t{1} << 28;
 ///     high up says nothing about what sits low; no observed voxel at all says nothing).
 /// Parallel over block columns (cfg.threads, 0 = all CPUs); deterministic.
 HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg);
+
+/// computeHeightMap over the block columns that meet `window` (u, v in metres; an empty box:
+/// all), its grid trimmed from the full one by whole roughness tiles, so computeRoughness
+/// gives the full map's tiles there. Cells outside the window but inside the trimmed grid hold
+/// their heights. Empty when no block column meets the window.
+HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg,
+                           const Eigen::AlignedBox2d& window);
 
 /// One connected object (or object cluster) of an ObjectMap.
 struct ObjectInfo {

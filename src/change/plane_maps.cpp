@@ -209,13 +209,20 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
                            int rim_cells) {
   PlaneMaps m;
   m.rim_cells = rim_cells;
-  m.heights = computeHeightMap(plane.volume, cfg);
-  HeightMap& hm = m.heights;
   // Support: the band is unbounded, but only what stands on the plane is its object; beyond its
-  // extent (a table's band reaching the walls, a shelf across the room) it is unknown.
+  // extent (a table's band reaching the walls, a shelf across the room) it is unknown. The grid
+  // reaches support_margin further, so the other session's cells placed within its drift of
+  // this one's land in it (design.md, "Support limit").
+  Eigen::AlignedBox2d support, window;
   if (!plane.plane.extent.isEmpty()) {
-    const Eigen::AlignedBox2d support(plane.plane.extent.min().array() - cfg.support_margin,
-                                      plane.plane.extent.max().array() + cfg.support_margin);
+    support = Eigen::AlignedBox2d(plane.plane.extent.min().array() - cfg.support_margin,
+                                  plane.plane.extent.max().array() + cfg.support_margin);
+    window = Eigen::AlignedBox2d(support.min().array() - cfg.support_margin,
+                                 support.max().array() + cfg.support_margin);
+  }
+  m.heights = computeHeightMap(plane.volume, cfg, window);
+  HeightMap& hm = m.heights;
+  if (!support.isEmpty()) {
     for (int y = 0; y < hm.height; ++y)
       for (int x = 0; x < hm.width; ++x)
         if (!support.contains(hm.cellCenter(x, y))) hm.at(x, y) = kUnobserved;

@@ -17,6 +17,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <numeric>
 #include <string>
 #include <vector>
 
@@ -36,6 +37,7 @@ std::vector<BlockColumn> bucketBlockColumns(const TsdfVolume& vol, const Eigen::
   std::vector<BlockColumn> columns(static_cast<std::size_t>(nbx) * static_cast<std::size_t>(nby));
   for (std::size_t slot = 0; slot < vol.numBlocks(); ++slot) {
     const Eigen::Vector3i& b = vol.blockIndex(slot);
+    if (b.x() < lo.x() || b.x() > hi.x() || b.y() < lo.y() || b.y() > hi.y()) continue;
     const std::size_t c =
         static_cast<std::size_t>(b.y() - lo.y()) * nbx + static_cast<std::size_t>(b.x() - lo.x());
     columns[c].emplace_back(b.z(), &vol.block(slot));
@@ -245,6 +247,28 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
   }
 }
 
+/// Trims the block bounds [lo, hi] (x and y) to the block columns that meet `window` (u, v in
+/// metres), by whole steps of lcm(block side, roughness tile) cells from the full bounds'
+/// origin: the trimmed grid's roughness tiles are the full grid's (computeRoughness). False
+/// when no block column meets the window.
+bool trimToWindow(const Eigen::AlignedBox2d& window, double voxel_size, int roughness_tile,
+                  Eigen::Vector3i& lo, Eigen::Vector3i& hi) {
+  const int tile = roughness_tile > 0 ? roughness_tile : kTsdfBlockSide;
+  const int step = std::lcm(kTsdfBlockSide, tile) / kTsdfBlockSide;  // in blocks
+  const double block = voxel_size * kTsdfBlockSide;
+  for (int a = 0; a < 2; ++a) {
+    const double wlo = std::floor(window.min()(a) / block);
+    const double whi = std::floor(window.max()(a) / block);
+    if (!(wlo <= hi(a)) || !(whi >= lo(a))) return false;
+    const int first = static_cast<int>(std::max<double>(lo(a), wlo));
+    const int last = static_cast<int>(std::min<double>(hi(a), whi));
+    const int new_lo = lo(a) + (first - lo(a)) / step * step;
+    hi(a) = std::min(hi(a), lo(a) + ((last - lo(a)) / step + 1) * step - 1);
+    lo(a) = new_lo;
+  }
+  return true;
+}
+
 }  // namespace
 
 std::size_t HeightMap::numObserved() const {
@@ -253,10 +277,17 @@ std::size_t HeightMap::numObserved() const {
 }
 
 HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg) {
+  return computeHeightMap(vol, cfg, Eigen::AlignedBox2d());
+}
+
+HeightMap computeHeightMap(const TsdfVolume& vol, const Config& cfg,
+                           const Eigen::AlignedBox2d& window) {
   HeightMap hm;
   hm.cell_size = vol.voxelSize();
   Eigen::Vector3i lo, hi;
   if (!vol.blockBounds(&lo, &hi)) return hm;
+  if (!window.isEmpty() && !trimToWindow(window, vol.voxelSize(), cfg.roughness_tile, lo, hi))
+    return hm;
   hm.width = (hi.x() - lo.x() + 1) * kTsdfBlockSide;
   hm.height = (hi.y() - lo.y() + 1) * kTsdfBlockSide;
   if (hm.numCells() > kMaxHeightMapCells)

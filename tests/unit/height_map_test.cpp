@@ -474,6 +474,58 @@ TEST(HeightMap, MatchesAPlainPerColumnWalkOnRandomVolumes) {
   expectMatchesReference(sceneVolume(), scfg, 2);
 }
 
+TEST(HeightMap, AWindowTrimsTheGridByWholeRoughnessTilesAndKeepsItsCells) {
+  Config cfg = testConfig();
+  cfg.roughness_tile = 16;  // two blocks: the trimmed origin moves by whole pairs of blocks
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  TsdfVolume vol(cfg);
+  for (int by = -3; by <= 9; ++by)
+    for (int bx = -4; bx <= 12; ++bx)
+      for (TsdfVoxel& v : vol.allocateBlock(Eigen::Vector3i(bx, by, 0)).voxels)
+        v = {unit(rng) < 0.5f ? -0.01f : 0.02f, 1.0f + 4.0f * unit(rng)};
+  const HeightMap full = computeHeightMap(vol, cfg);
+  const double block = kVoxel * kTsdfBlockSide;
+  // Blocks 3..5 in u and 1..2 in v: the grid starts at the tile boundary below (block 2, block
+  // 1) and ends at the one above (block 5, block 2).
+  const Eigen::AlignedBox2d window(Eigen::Vector2d(3.2 * block, 1.5 * block),
+                                   Eigen::Vector2d(5.5 * block, 2.9 * block));
+  const HeightMap trimmed = computeHeightMap(vol, cfg, window);
+  EXPECT_EQ(trimmed.i0, 2 * kTsdfBlockSide);
+  EXPECT_EQ(trimmed.j0, 1 * kTsdfBlockSide);
+  EXPECT_EQ(trimmed.width, 4 * kTsdfBlockSide);
+  EXPECT_EQ(trimmed.height, 2 * kTsdfBlockSide);
+  EXPECT_EQ((trimmed.i0 - full.i0) % cfg.roughness_tile, 0);
+  EXPECT_EQ((trimmed.j0 - full.j0) % cfg.roughness_tile, 0);
+  int differing = 0;
+  for (int y = 0; y < trimmed.height; ++y)
+    for (int x = 0; x < trimmed.width; ++x) {
+      const int fx = x + trimmed.i0 - full.i0, fy = y + trimmed.j0 - full.j0;
+      differing += trimmed.at(x, y) != full.at(fx, fy) ||
+                   trimmed.unseenAbove(x, y) != full.unseenAbove(fx, fy);
+    }
+  EXPECT_EQ(differing, 0);
+  // Its roughness tiles are the full map's.
+  const RoughnessMap rt = computeRoughness(trimmed, cfg), rf = computeRoughness(full, cfg);
+  const int dtx = (trimmed.i0 - full.i0) / cfg.roughness_tile;
+  const int dty = (trimmed.j0 - full.j0) / cfg.roughness_tile;
+  for (int ty = 0; ty < rt.tiles_y; ++ty)
+    for (int tx = 0; tx < rt.tiles_x; ++tx)
+      EXPECT_EQ(rt.sigma[static_cast<std::size_t>(ty * rt.tiles_x + tx)],
+                rf.sigma[static_cast<std::size_t>((ty + dty) * rf.tiles_x + tx + dtx)]);
+  // A window past the last block column is clipped to it; one beside every block gives nothing.
+  const HeightMap edge =
+      computeHeightMap(vol, cfg,
+                       Eigen::AlignedBox2d(Eigen::Vector2d(11.5 * block, -9.0 * block),
+                                           Eigen::Vector2d(40.0 * block, -2.5 * block)));
+  EXPECT_EQ(edge.i0 + edge.width, full.i0 + full.width);
+  EXPECT_EQ(edge.j0, full.j0);
+  EXPECT_TRUE(computeHeightMap(vol, cfg,
+                               Eigen::AlignedBox2d(Eigen::Vector2d(20.0 * block, 0.0),
+                                                   Eigen::Vector2d(21.0 * block, block)))
+                  .empty());
+}
+
 // ---- end to end: depth frames rendered by ray casting and fused ---------------------------
 
 /// Distance along o + t * dir to the plane h = 0 or the box, or +inf.
