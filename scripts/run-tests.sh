@@ -29,7 +29,9 @@ ctest --test-dir build --output-on-failure -j"$jobs" --timeout 600
 step "install + out-of-tree consumer"
 rm -rf build/_install build/_consumer
 cmake --install build --prefix build/_install >/dev/null
-cmake -S tests/consumer -B build/_consumer -DCMAKE_PREFIX_PATH="$root/build/_install" >/dev/null
+# -march=native: the installed target must give the consumer the library's Eigen layout.
+cmake -S tests/consumer -B build/_consumer -DCMAKE_PREFIX_PATH="$root/build/_install" \
+  -DCMAKE_CXX_FLAGS="-march=native" >/dev/null
 cmake --build build/_consumer -j"$jobs" >/dev/null
 build/_consumer/consumer
 build/_install/bin/planesdf --version  # the installed CLI finds its libraries (RUNPATH)

@@ -12,6 +12,13 @@
 #include <string>
 #include <vector>
 
+// planesdf's structs hold fixed-size Eigen members, laid out for 16-byte alignment; the CMake
+// target planesdf::planesdf defines it for its users. Without it, -mavx or -march=native give
+// them another layout than the library's and corrupt memory.
+static_assert(EIGEN_MAX_STATIC_ALIGN_BYTES == 16,
+              "planesdf: compile with -DEIGEN_MAX_STATIC_ALIGN_BYTES=16 (link the CMake target "
+              "planesdf::planesdf, which sets it)");
+
 namespace planesdf {
 
 /// A rigid transform. Camera poses are camera-to-world (x_world = pose * x_camera), camera frame

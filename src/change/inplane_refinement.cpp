@@ -735,6 +735,8 @@ InPlaneRefinement refineInPlane(const HeightMap& src, const ObjectMap& src_objec
   out.mismatches_before = out.mismatches_after = initial.mismatches;
   out.mean_abs_before = out.mean_abs_after = initial.mean_abs;
   if (initial.compared < std::max(1, cfg.inplane_min_compared)) return out;
+  // No candidate removes more mismatches than there are: clearGain cannot pass.
+  if (initial.mismatches < cfg.inplane_min_gain_cells) return out;
 
   const double step = cfg.inplane_shift_step > 0.0 ? cfg.inplane_shift_step : tgt.cell_size;
   const double ystep = cfg.inplane_yaw_step_deg;

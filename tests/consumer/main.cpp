@@ -15,6 +15,14 @@ int main() {
   planesdf::io::writePly(path, c);
   const auto back = planesdf::io::readPly(path);
   std::filesystem::remove(path);
+  // A struct with a Pose crosses the library boundary both ways (the build may use
+  // -march=native: the layouts must still agree).
+  c.sensor_pose.translation() = Eigen::Vector3d(1.0, 2.0, 3.0);
+  const auto pcd = (std::filesystem::temp_directory_path() / "planesdf_consumer.pcd").string();
+  planesdf::io::writePcd(pcd, c);
+  const auto viewed = planesdf::io::readPcd(pcd);
+  std::filesystem::remove(pcd);
+  if (!viewed.sensor_pose.translation().isApprox(Eigen::Vector3d(1.0, 2.0, 3.0))) return 1;
   const planesdf::Config cfg;
 #ifdef HAVE_PLANESDF_OCTOMAP
   if (planesdf::octomap_adapter::toOctomap(back).size() != 2) return 1;
