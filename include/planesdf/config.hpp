@@ -173,6 +173,25 @@ struct Config {
   /// the plane (a wall or a shelf in a table's band, across the room) is not on it. A large value
   /// (1000) disables the limit.
   double support_margin = 0.10;
+  /// Ownership of a band between planes (design.md, "Ownership"). Planes whose normals' |cosine|
+  /// is below ownership_parallel_cos are not parallel: a height-map surface within
+  /// ownership_surface_distance (m) of such a plane, inside its extent grown by
+  /// ownership_extent_margin (m), lies on that plane and is unknown here.
+  double ownership_parallel_cos = 0.7;
+  double ownership_surface_distance = 0.02;
+  double ownership_extent_margin = 0.03;
+  /// A vertical plane whose extent is at least structure_min_extent (m) long is room structure
+  /// (a wall, a shelf's side; not a box's face): its surface is unknown in other bands from
+  /// structure_behind (m) behind it to structure_front (m) in front, the back half of a far
+  /// wall's noisy surface (3 sigma of a Kinect's depth noise is 6 cm at 3.5 m) and the
+  /// truncation band behind it, which the height walk reads as objects standing in the wall.
+  /// A plane farther than structure_behind behind another was seen through it.
+  double structure_min_extent = 1.0;
+  double structure_behind = 0.10;
+  double structure_front = 0.06;
+  /// m; room structure at least this long is a wall: its surface near another wall is structure
+  /// at any height (the planes of frame streams stop near 1.8 m).
+  double wall_min_length = 2.0;
   /// Speckle filter of the object map (computeObjectMap). A connected component of cells above
   /// h_obj in which fewer than this fraction of the cells have their whole 3x3 neighbourhood above
   /// h_obj is sensor noise percolating over a far or grazing surface (single noisy cells a few

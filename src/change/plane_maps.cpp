@@ -19,24 +19,6 @@ namespace {
 using detail::BandFilter;
 using detail::maxHeight;
 
-/// Planes with |n·n'| below this are not parallel (see computePlaneMaps).
-constexpr double kParallelPlaneCos = 0.7;
-/// A height-map surface within this distance (m) of another plane, inside its extent grown by
-/// kOtherPlaneMargin (m), lies on that plane ...
-constexpr double kOtherPlaneDistance = 0.02;
-/// ... and, for a plane of room structure (its extent at least
-/// kStructureMinExtent long, m: a wall or a shelf side, not the face of a box), so does one up to
-/// kOtherPlaneBehind (m) behind it: the back half of a far wall's noisy surface (3 sigma of a
-/// Kinect's depth noise is 6 cm at 3.5 m) and the truncation band behind it, which the height walk
-/// reads as objects standing in the wall.
-constexpr double kOtherPlaneBehind = 0.10;
-/// In front of such a plane, its noisy surface reaches this far (m).
-constexpr double kStructureFront = 0.06;
-constexpr double kStructureMinExtent = 1.0;
-/// A vertical plane at least this long (m) is a wall of the room.
-constexpr double kWallMinLength = 2.0;
-constexpr double kOtherPlaneMargin = 0.03;
-
 }  // namespace
 
 CellPoints bucketBandPoints(const Plane& plane, const HeightMap& heights,
@@ -102,7 +84,7 @@ double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, c
   for (const PlaneSdf& ps : map_planes) {
     const Plane& r = ps.plane;
     if (r.id == q.id || r.extent.isEmpty() || r.orientation != Plane::Orientation::Horizontal ||
-        r.normal.dot(q.normal) < kParallelPlaneCos)
+        r.normal.dot(q.normal) < cfg.ownership_parallel_cos)
       continue;
     const double above = -r.signedDistance(origin);
     if (above > cfg.fuse_band && above <= 2.0 * cfg.fuse_band && extentsOverlap(q, r))
@@ -113,16 +95,16 @@ double compartmentTop(const Plane& q, const std::vector<PlaneSdf>& map_planes, c
 }
 
 /// True when the cameras saw through vertical plane `q`: part of the extent of another vertical
-/// plane facing within 45 degrees of it lies more than kOtherPlaneBehind behind it, and at least
-/// as far inside q's extent as it is behind (a shelf's front, the coplanar edges of its boards,
-/// with the wall behind the shelf; not a shelf's side, with a wall far behind it seen past its
-/// edge). A wall of the room hides what is behind it (design.md, "Walls are opaque").
-bool seenThrough(const Plane& q, const std::vector<PlaneSdf>& map_planes) {
+/// plane facing within 45 degrees of it lies more than cfg.structure_behind behind it, and at
+/// least as far inside q's extent as it is behind (a shelf's front, the coplanar edges of its
+/// boards, with the wall behind the shelf; not a shelf's side, with a wall far behind it seen past
+/// its edge). A wall of the room hides what is behind it (design.md, "Walls are opaque").
+bool seenThrough(const Plane& q, const std::vector<PlaneSdf>& map_planes, const Config& cfg) {
   constexpr int kSamples = 9;  // per side of another plane's extent
   for (const PlaneSdf& ps : map_planes) {
     const Plane& w = ps.plane;
     if (w.id == q.id || w.extent.isEmpty() || w.orientation != Plane::Orientation::Vertical ||
-        std::abs(w.normal.dot(q.normal)) < kParallelPlaneCos)
+        std::abs(w.normal.dot(q.normal)) < cfg.ownership_parallel_cos)
       continue;
     for (int i = 0; i < kSamples; ++i)
       for (int j = 0; j < kSamples; ++j) {
@@ -130,7 +112,7 @@ bool seenThrough(const Plane& q, const std::vector<PlaneSdf>& map_planes) {
         const Eigen::Vector2d uv = w.extent.min() + t.cwiseProduct(w.extent.sizes());
         const Eigen::Vector3d x = w.toWorld(Eigen::Vector3d(uv.x(), uv.y(), 0.0));
         const double behind = -q.signedDistance(x);
-        if (behind <= kOtherPlaneBehind) continue;
+        if (behind <= cfg.structure_behind) continue;
         // At least `behind` inside q's extent: any ray to it within 45 degrees of q's normal
         // crosses q's extent.
         const Eigen::Vector2d local = q.toLocal(x).head<2>();
@@ -144,9 +126,9 @@ bool seenThrough(const Plane& q, const std::vector<PlaneSdf>& map_planes) {
 
 /// What the other planes of the map claim of `plane`'s band (unknown there):
 ///  * the surface of a non-parallel plane (a wall in a table's band, a table in a wall's band) is
-///    structure, within kOtherPlaneDistance of it; for room structure (a vertical plane at least
-///    kStructureMinExtent long, not seenThrough) from kOtherPlaneBehind behind to kStructureFront
-///    in front;
+///    structure, within cfg.ownership_surface_distance of it; for room structure (a vertical
+///    plane at least cfg.structure_min_extent long, not seenThrough) from cfg.structure_behind
+///    behind to cfg.structure_front in front;
 ///  * what stands on a horizontal plane is that plane's object (design.md, "Ownership"): its
 ///    whole band, within its extent grown by cfg.support_margin, when `plane` is room structure
 ///    (a shelf's boards and what stands on them in the band of the wall behind, a box on the
@@ -161,7 +143,8 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
                             const Config& cfg) {
   const auto isStructure = [&](const Plane& q) {
     return q.orientation == Plane::Orientation::Vertical &&
-           q.extent.sizes().maxCoeff() >= kStructureMinExtent && !seenThrough(q, map_planes);
+           q.extent.sizes().maxCoeff() >= cfg.structure_min_extent &&
+           !seenThrough(q, map_planes, cfg);
   };
   const bool vertical = plane.orientation == Plane::Orientation::Vertical;
   const bool plane_is_structure = isStructure(plane);
@@ -170,15 +153,15 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
   for (const PlaneSdf& ps : map_planes) {
     const Plane& q = ps.plane;
     if (q.id == plane.id || q.extent.isEmpty()) continue;
-    if (std::abs(q.normal.dot(plane.normal)) < kParallelPlaneCos) {
+    if (std::abs(q.normal.dot(plane.normal)) < cfg.ownership_parallel_cos) {
       const bool structure = isStructure(q);
-      Eigen::AlignedBox2d box = grown(q.extent, kOtherPlaneMargin);
+      Eigen::AlignedBox2d box = grown(q.extent, cfg.ownership_extent_margin);
       // A wall goes on up beyond what the streams' planes saw of it (their extents stop near
       // 1.8 m): its surface near another wall is structure at any height (v is up).
-      if (structure && q.extent.sizes().x() >= kWallMinLength)
+      if (structure && q.extent.sizes().x() >= cfg.wall_min_length)
         box.max().y() = std::numeric_limits<double>::infinity();
-      claims.push_back({&q, -(structure ? kOtherPlaneBehind : kOtherPlaneDistance),
-                        structure ? kStructureFront : kOtherPlaneDistance, box});
+      claims.push_back({&q, -(structure ? cfg.structure_behind : cfg.ownership_surface_distance),
+                        structure ? cfg.structure_front : cfg.ownership_surface_distance, box});
     }
     if (q.orientation != Plane::Orientation::Horizontal) continue;
     // A slab just above the band (the next shelf board, a table top over a low one): its
@@ -187,8 +170,8 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
     const double above = -q.signedDistance(origin);  // q's height over this plane's origin
     if (!vertical && above > cfg.fuse_band && above <= cfg.fuse_band + detail::kMaxSlabThickness &&
         extentsOverlap(plane, q))
-      claims.push_back({&q, -detail::kMaxSlabThickness, kOtherPlaneDistance,
-                        grown(q.extent, kOtherPlaneMargin)});
+      claims.push_back({&q, -detail::kMaxSlabThickness, cfg.ownership_surface_distance,
+                        grown(q.extent, cfg.ownership_extent_margin)});
     const bool owns = vertical ? plane_is_structure : above > 0.0 && !extentsOverlap(plane, q);
     if (owns)  // with its slab: a board's underside, up to kMaxSlabThickness below its top
       claims.push_back({&q, -detail::kMaxSlabThickness,

@@ -114,6 +114,13 @@ const std::vector<Param>& params() {
       {"in_place_min_overlap", &Config::in_place_min_overlap},
       {"in_place_shift_fraction", &Config::in_place_shift_fraction},
       {"replaced_min_overlap", &Config::replaced_min_overlap},
+      {"ownership_parallel_cos", &Config::ownership_parallel_cos},
+      {"ownership_surface_distance", &Config::ownership_surface_distance},
+      {"ownership_extent_margin", &Config::ownership_extent_margin},
+      {"structure_min_extent", &Config::structure_min_extent},
+      {"structure_behind", &Config::structure_behind},
+      {"structure_front", &Config::structure_front},
+      {"wall_min_length", &Config::wall_min_length},
   };
   return table;
 }
@@ -171,6 +178,15 @@ void validateChangeTuning(const Config& cfg, const std::string& what) {
   require(in(cfg.in_place_shift_fraction, 0.0, 1000.0),
           "in_place_shift_fraction must be in [0, 1000]");
   require(in(cfg.replaced_min_overlap, 0.0, 1.0), "replaced_min_overlap must be in [0, 1]");
+  require(in(cfg.ownership_parallel_cos, 0.0, 1.0), "ownership_parallel_cos must be in [0, 1]");
+  for (const auto& [name, value] : {std::pair<const char*, double>{"ownership_surface_distance",
+                                                                   cfg.ownership_surface_distance},
+                                    {"ownership_extent_margin", cfg.ownership_extent_margin},
+                                    {"structure_behind", cfg.structure_behind},
+                                    {"structure_front", cfg.structure_front}})
+    require(in(value, 0.0, 10.0), std::string(name) + " must be in [0, 10] m");
+  require(in(cfg.structure_min_extent, 0.0, 1000.0) && in(cfg.wall_min_length, 0.0, 1000.0),
+          "structure_min_extent and wall_min_length must be in [0, 1000] m");
 }
 
 }  // namespace

@@ -871,6 +871,12 @@ TEST(PlaneMaps, AWallsNoisySurfaceAndTheBandBehindItAreStructureNotObjects) {
   EXPECT_EQ(objectCellsBetween(with_wall, 0.26, 0.38), 0);
   EXPECT_EQ(objectCellsBetween(with_wall, 0.05, 0.11), objectCellsBetween(alone, 0.05, 0.11));
   EXPECT_GT(objectCellsBetween(alone, 0.05, 0.11), 500);
+  // Config::structure_min_extent above its 2 m: the same wall is only a surface, and its spread
+  // beyond ownership_surface_distance stays objects.
+  Config short_cfg;
+  short_cfg.structure_min_extent = 2.5;
+  const PlaneMaps short_wall = computePlaneMaps(floor, {floor, wallAt(0.31, 1.2, 2.0)}, short_cfg);
+  EXPECT_EQ(objectCellsBetween(short_wall, 0.34, 0.38), objectCellsBetween(alone, 0.34, 0.38));
   // A box face (a vertical plane 30 x 30 cm) only takes the cells within 2 cm of it.
   const PlaneMaps with_face = computePlaneMaps(floor, {floor, wallAt(0.31, 0.3, 0.3)}, cfg);
   const int near_face =

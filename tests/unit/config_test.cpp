@@ -125,6 +125,20 @@ TEST(Config, ChangeTuningIsInRangeAndReadFromTheFile) {
   EXPECT_EQ(planesdf::validationParams(c).max_key_voxels, 50);
 }
 
+TEST(Config, OwnershipGeometryIsInRangeAndReadFromTheFile) {
+  EXPECT_NE(errorOf(R"({"ownership_parallel_cos": 1.2})").find("ownership_parallel_cos must be"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"structure_behind": -0.1})").find("structure_behind must be in [0, 10] m"),
+            std::string::npos);
+  EXPECT_NE(errorOf(R"({"wall_min_length": 2000})").find("wall_min_length must be"),
+            std::string::npos);
+  const Config c =
+      planesdf::parseConfigJson(R"({"structure_front": 0.04, "wall_min_length": 3})", "x");
+  EXPECT_DOUBLE_EQ(c.structure_front, 0.04);
+  EXPECT_DOUBLE_EQ(c.wall_min_length, 3.0);
+  EXPECT_DOUBLE_EQ(c.structure_behind, Config{}.structure_behind);
+}
+
 TEST(Config, MemoryLimitIsInRangeAndDefaultsToHalfThePhysicalMemory) {
   EXPECT_NE(errorOf(R"({"memory_limit_mb": -1})").find("memory_limit_mb must be in [0, 16777216]"),
             std::string::npos);
