@@ -21,6 +21,11 @@ std::string errorOf(const std::string& text) {
   return "";
 }
 
+/// Expects parseConfigJson(text) to throw an error whose message contains `message`.
+void expectRefused(const std::string& text, const std::string& message) {
+  EXPECT_NE(errorOf(text).find(message), std::string::npos) << text << ": " << errorOf(text);
+}
+
 TEST(Config, PaperDefaults) {
   const Config c;
   EXPECT_DOUBLE_EQ(c.delta_n, 0.95);
@@ -112,12 +117,9 @@ TEST(Config, SettleFramesAreInRange) {
 }
 
 TEST(Config, ChangeTuningIsInRangeAndReadFromTheFile) {
-  EXPECT_NE(errorOf(R"({"verdict_min_scored": 0})").find("cfg.json: verdict_min_scored"),
-            std::string::npos);
-  EXPECT_NE(errorOf(R"({"in_place_min_overlap": 1.5})").find("in_place_min_overlap must be"),
-            std::string::npos);
-  EXPECT_NE(errorOf(R"({"inplane_yaw_step_deg": 0})").find("inplane_yaw_step_deg must be"),
-            std::string::npos);
+  expectRefused(R"({"verdict_min_scored": 0})", "cfg.json: verdict_min_scored");
+  expectRefused(R"({"in_place_min_overlap": 1.5})", "in_place_min_overlap must be");
+  expectRefused(R"({"inplane_yaw_step_deg": 0})", "inplane_yaw_step_deg must be");
   const Config c = planesdf::parseConfigJson(
       R"({"moved_shape_distance": 0.25, "inplane_max_shift": 0.05, "key_max_voxels": 50})", "x");
   EXPECT_DOUBLE_EQ(c.moved_shape_distance, 0.25);
@@ -126,12 +128,9 @@ TEST(Config, ChangeTuningIsInRangeAndReadFromTheFile) {
 }
 
 TEST(Config, OwnershipGeometryIsInRangeAndReadFromTheFile) {
-  EXPECT_NE(errorOf(R"({"ownership_parallel_cos": 1.2})").find("ownership_parallel_cos must be"),
-            std::string::npos);
-  EXPECT_NE(errorOf(R"({"structure_behind": -0.1})").find("structure_behind must be in [0, 10] m"),
-            std::string::npos);
-  EXPECT_NE(errorOf(R"({"wall_min_length": 2000})").find("wall_min_length must be"),
-            std::string::npos);
+  expectRefused(R"({"ownership_parallel_cos": 1.2})", "ownership_parallel_cos must be");
+  expectRefused(R"({"structure_behind": -0.1})", "structure_behind must be in [0, 10] m");
+  expectRefused(R"({"wall_min_length": 2000})", "wall_min_length must be");
   const Config c =
       planesdf::parseConfigJson(R"({"structure_front": 0.04, "wall_min_length": 3})", "x");
   EXPECT_DOUBLE_EQ(c.structure_front, 0.04);
