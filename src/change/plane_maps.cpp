@@ -198,10 +198,8 @@ PlaneMaps computePlaneMaps(const PlaneSdf& plane, const std::vector<PlaneSdf>& m
   // this one's land in it (design.md, "Support limit").
   Eigen::AlignedBox2d support, window;
   if (!plane.plane.extent.isEmpty()) {
-    support = Eigen::AlignedBox2d(plane.plane.extent.min().array() - cfg.support_margin,
-                                  plane.plane.extent.max().array() + cfg.support_margin);
-    window = Eigen::AlignedBox2d(support.min().array() - cfg.support_margin,
-                                 support.max().array() + cfg.support_margin);
+    support = grown(plane.plane.extent, cfg.support_margin);
+    window = grown(support, cfg.support_margin);
   }
   m.heights = computeHeightMap(plane.volume, cfg, window);
   HeightMap& hm = m.heights;

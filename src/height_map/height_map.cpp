@@ -253,18 +253,19 @@ void blockColumnHeights(const BlockColumn& blocks, float vs, float w_min, float 
 /// when no block column meets the window.
 bool trimToWindow(const Eigen::AlignedBox2d& window, double voxel_size, int roughness_tile,
                   Eigen::Vector3i& lo, Eigen::Vector3i& hi) {
-  const int tile = roughness_tile > 0 ? roughness_tile : kTsdfBlockSide;
-  const int step = std::lcm(kTsdfBlockSide, tile) / kTsdfBlockSide;  // in blocks
+  // 64-bit: an unvalidated tile up to INT_MAX must not overflow (a step past the grid trims
+  // nothing).
+  const long long tile = roughness_tile > 0 ? roughness_tile : kTsdfBlockSide;
+  const long long step = std::lcm<long long>(kTsdfBlockSide, tile) / kTsdfBlockSide;  // blocks
   const double block = voxel_size * kTsdfBlockSide;
   for (int a = 0; a < 2; ++a) {
     const double wlo = std::floor(window.min()(a) / block);
     const double whi = std::floor(window.max()(a) / block);
     if (!(wlo <= hi(a)) || !(whi >= lo(a))) return false;
-    const int first = static_cast<int>(std::max<double>(lo(a), wlo));
-    const int last = static_cast<int>(std::min<double>(hi(a), whi));
-    const int new_lo = lo(a) + (first - lo(a)) / step * step;
-    hi(a) = std::min(hi(a), lo(a) + ((last - lo(a)) / step + 1) * step - 1);
-    lo(a) = new_lo;
+    const long long first = static_cast<long long>(std::max<double>(lo(a), wlo)) - lo(a);
+    const long long last = static_cast<long long>(std::min<double>(hi(a), whi)) - lo(a);
+    hi(a) = static_cast<int>(std::min<long long>(hi(a), lo(a) + (last / step + 1) * step - 1));
+    lo(a) = static_cast<int>(lo(a) + first / step * step);
   }
   return true;
 }

@@ -179,12 +179,12 @@ void validateChangeTuning(const Config& cfg, const std::string& what) {
           "in_place_shift_fraction must be in [0, 1000]");
   require(in(cfg.replaced_min_overlap, 0.0, 1.0), "replaced_min_overlap must be in [0, 1]");
   require(in(cfg.ownership_parallel_cos, 0.0, 1.0), "ownership_parallel_cos must be in [0, 1]");
-  for (const auto& [name, value] : {std::pair<const char*, double>{"ownership_surface_distance",
-                                                                   cfg.ownership_surface_distance},
-                                    {"ownership_extent_margin", cfg.ownership_extent_margin},
-                                    {"structure_behind", cfg.structure_behind},
-                                    {"structure_front", cfg.structure_front}})
-    require(in(value, 0.0, 10.0), std::string(name) + " must be in [0, 10] m");
+  require(in(cfg.ownership_surface_distance, 0.0, 10.0),
+          "ownership_surface_distance must be in [0, 10] m");
+  require(in(cfg.ownership_extent_margin, 0.0, 10.0),
+          "ownership_extent_margin must be in [0, 10] m");
+  require(in(cfg.structure_behind, 0.0, 10.0), "structure_behind must be in [0, 10] m");
+  require(in(cfg.structure_front, 0.0, 10.0), "structure_front must be in [0, 10] m");
   require(in(cfg.structure_min_extent, 0.0, 1000.0) && in(cfg.wall_min_length, 0.0, 1000.0),
           "structure_min_extent and wall_min_length must be in [0, 1000] m");
 }
