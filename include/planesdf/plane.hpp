@@ -61,12 +61,17 @@ struct Plane {
 struct PlaneObservation {
   Plane plane;                         ///< id -1; support = number of inliers
   std::vector<std::uint32_t> inliers;  ///< indices into the frame's points
+  /// The plane is final (a thin panel's front face, fitted together with its back face): its
+  /// inliers extend it but a tracker does not refit it to them.
+  bool fitted = false;
 };
 
 /// Result of whole-cloud detection.
 struct PlaneSegmentation {
-  std::vector<Plane> planes;                      ///< id == index, sorted by decreasing support
-  std::vector<int> labels;                        ///< per input point: index of its plane, or -1
+  std::vector<Plane> planes;  ///< id == index, sorted by decreasing support
+  std::vector<int> labels;    ///< per input point: index of its plane, or -1
+  /// Per plane: 1 when it is a thin panel's front face (PlaneObservation::fitted).
+  std::vector<char> fitted;
   Eigen::Vector3d up = Eigen::Vector3d::UnitZ();  ///< the up axis used (cfg.up or estimated)
 };
 

@@ -74,17 +74,18 @@ void uniteRegion(ChangeRegion& into, const ChangeRegion& from) {
 /// Greedy pairing by shape, best first: the pairs (i, j) of `a` and `b` (not yet `a_used` /
 /// `b_used`) whose shapes (`shape_a(i)`, `shape_b(j)`) lie within `max_distance`
 /// (Config::moved_shape_distance), each index used once; marks the paired ones used.
-template <typename ShapeA, typename ShapeB>
+/// `allowed(i, j)` vetoes a pair.
+template <typename ShapeA, typename ShapeB, typename Allowed>
 std::vector<std::pair<std::size_t, std::size_t>> pairByShape(std::size_t na, std::size_t nb,
                                                              ShapeA shape_a, ShapeB shape_b,
                                                              std::vector<bool>& a_used,
                                                              std::vector<bool>& b_used,
-                                                             double max_distance) {
+                                                             double max_distance, Allowed allowed) {
   std::vector<std::tuple<double, std::size_t, std::size_t>> near;
   for (std::size_t i = 0; i < na; ++i)
     for (std::size_t j = 0; j < nb; ++j) {
       const double d = shapeDistance(shape_a(i), shape_b(j));
-      if (d < max_distance) near.emplace_back(d, i, j);
+      if (d < max_distance && allowed(i, j)) near.emplace_back(d, i, j);
     }
   std::sort(near.begin(), near.end());
   std::vector<std::pair<std::size_t, std::size_t>> out;
@@ -330,11 +331,26 @@ std::vector<ChangeRegion> takeIntoMoves(Assembly& a, Landed& regions,
   return left;
 }
 
+/// Whether added candidate j stands where another removed candidate stood while removed candidate
+/// i left an empty footprint (it lands on nothing): j is that object's replacement, i a removal,
+/// not a move of i onto a spot another object just left (design.md, "Replacement before move").
+/// In a swap, i lands on the other object, so swaps still pair.
+bool replacesAnother(const Assembly& a, std::size_t i, std::size_t j) {
+  if (!a.removed[i].target_object.empty()) return false;
+  const CandidateChange& c = a.added[j];
+  for (std::size_t k = 0; k < a.removed.size(); ++k) {
+    const CandidateChange& r = a.removed[k];
+    if (k == i || a.r_used[k] || r.supporting || r.target_plane_id != c.region.plane_id) continue;
+    if (columnsOverlap(r.target_columns, c.region.columns)) return true;
+  }
+  return false;
+}
+
 /// Moved: greedy over the pairs with matching shapes, best first (supporting slivers are no
-/// object's shape). Then swaps (design.md, "Swaps"): each moved object lands on the other one
-/// whole, in both places. A move overlapping such a region takes it (the other object's blobs
-/// were only the ring the larger one leaves uncovered); regions no move overlaps (the other
-/// object's blobs all covered) pair by shape as the other object's move.
+/// object's shape; replacesAnother vetoes a pair). Then swaps (design.md, "Swaps"): each moved
+/// object lands on the other one whole, in both places. A move overlapping such a region takes it
+/// (the other object's blobs were only the ring the larger one leaves uncovered); regions no move
+/// overlaps (the other object's blobs all covered) pair by shape as the other object's move.
 void pairMoves(Assembly& a) {
   std::vector<CandidateChange>& removed = a.removed;
   std::vector<CandidateChange>& added = a.added;
@@ -348,7 +364,8 @@ void pairMoves(Assembly& a) {
       removed.size(), added.size(),
       [&](std::size_t i) -> const ShapeSignature& { return removed[i].region.shape; },
       [&](std::size_t j) -> const ShapeSignature& { return added[j].region.shape; }, r_skip, a_skip,
-      a.cfg.moved_shape_distance);
+      a.cfg.moved_shape_distance,
+      [&](std::size_t i, std::size_t j) { return !replacesAnother(a, i, j); });
   for (const auto& [i, j] : movedPairs) {
     a.r_used[i] = a.a_used[j] = true;
     landedOn(added[j], under_reference, a.cfg.replaced_min_overlap);
@@ -363,7 +380,7 @@ void pairMoves(Assembly& a) {
       left_reference.size(), left_current.size(),
       [&](std::size_t i) -> const ShapeSignature& { return left_reference[i].shape; },
       [&](std::size_t j) -> const ShapeSignature& { return left_current[j].shape; }, ref_taken,
-      cur_taken, a.cfg.moved_shape_distance);
+      cur_taken, a.cfg.moved_shape_distance, [](std::size_t, std::size_t) { return true; });
   for (const auto& [i, j] : swapPairs)
     a.addMoved(std::move(left_reference[i]), std::move(left_current[j]));
 }

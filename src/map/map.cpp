@@ -643,6 +643,7 @@ std::vector<PlaneObservation> observationsOf(const PlaneSegmentation& seg) {
   for (std::size_t i = 0; i < seg.planes.size(); ++i) {
     obs[i].plane = seg.planes[i];
     obs[i].plane.id = -1;
+    obs[i].fitted = i < seg.fitted.size() && seg.fitted[i] != 0;
   }
   for (std::size_t p = 0; p < seg.labels.size(); ++p)
     if (seg.labels[p] >= 0) obs[seg.labels[p]].inliers.push_back(static_cast<std::uint32_t>(p));

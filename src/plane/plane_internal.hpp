@@ -69,6 +69,27 @@ Plane planeFromInliers(const Eigen::Vector3d& normal, double offset,
 Eigen::AlignedBox2d extentOf(const Plane& plane, const std::vector<Eigen::Vector3f>& points,
                              const std::vector<std::uint32_t>& indices);
 
+/// Where fitFrontFace looks for a plane's faces.
+struct SlabSearch {
+  const std::vector<Eigen::Vector3f>& points;
+  const std::vector<Eigen::Vector3f>& normals;  ///< per point (non-finite: any)
+  const std::vector<std::uint32_t>& valid;      ///< indices of the finite points
+  const std::vector<char>& claimed;             ///< points other planes hold (or this part)
+  double cell = 0.05;                           ///< in-plane cell, m
+  double reach = 0.03;    ///< how far from the plane unclaimed points may lie, m
+  double min_gap = 0.01;  ///< faces closer than this are one, m
+  double min_cos = 0.9;   ///< a point's normal within this cosine of the plane's (sign ignored)
+};
+
+/// A thin panel's points form two parallel faces, and a plane fitted to both lies between them
+/// or tilts from one to the other. When at least a tenth of the in-plane cells of `part` (with
+/// the unclaimed points within `reach` over them) show two faces more than `min_gap` apart along
+/// `normal`, refits (`normal`, `offset`) to the front face, the one `normal` points out of
+/// (parallel to the back face), adds the points on it to `part` (sorted) and returns true
+/// (design.md, "A panel's front face"). `axes` is the plane's frame.
+bool fitFrontFace(const SlabSearch& in, std::vector<std::uint32_t>& part,
+                  const Eigen::Matrix3d& axes, Eigen::Vector3d& normal, double& offset);
+
 /// Copies points[indices] (evenly subsampled to at most `max_count`).
 std::vector<Eigen::Vector3f> gatherPoints(const std::vector<Eigen::Vector3f>& points,
                                           const std::vector<std::uint32_t>& indices,

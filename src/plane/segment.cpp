@@ -152,6 +152,7 @@ std::vector<Candidate> planeCandidates(const std::vector<Eigen::Vector3f>& point
 struct Found {
   Plane plane;
   std::vector<std::uint32_t> inliers;
+  bool fitted = false;  ///< a thin panel's front face (PlaneObservation::fitted)
 };
 
 // Least squares + robust refinement of one connected part; the plane is kept when it is still
@@ -160,7 +161,8 @@ std::optional<Found> finishPart(const std::vector<Eigen::Vector3f>& points,
                                 std::vector<std::uint32_t> part, const Candidate& c,
                                 const Eigen::Vector3d& up,
                                 const std::optional<Eigen::Vector3d>& sensor,
-                                const Eigen::Vector3d& centroid, const Config& cfg) {
+                                const Eigen::Vector3d& centroid, const detail::SlabSearch* slabs,
+                                const Config& cfg) {
   Eigen::Vector3d n = c.normal;
   double d = c.offset;
   if (detail::fitPlanePca(points, part, n, d) && n.dot(c.normal) < 0.0) {
@@ -185,6 +187,11 @@ std::optional<Found> finishPart(const std::vector<Eigen::Vector3f>& points,
     detail::orientToward(n, d, centroid);
   }
   Found f;
+  if (slabs) {
+    f.fitted = detail::fitFrontFace(*slabs, part, planeAxes(n, up), n, d);
+    if (f.fitted && classifyOrientation(n, up, cfg.orientation_tolerance_deg) != cls)
+      return std::nullopt;
+  }
   f.plane = detail::planeFromInliers(n, d, points, part, up);
   f.plane.orientation = *cls;
   f.inliers = std::move(part);
@@ -277,13 +284,19 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
       part_candidate.push_back(&c);
     }
   }
+  // Whole-scene clouds see panels from both sides (a single view sees one face).
+  detail::SlabSearch slabs{world.points, normals, valid, claimed};
+  slabs.cell = cfg.plane_connect_cell;
+  slabs.reach = 2.0 * cfg.ransac_inlier_dist;
+  slabs.min_gap = cfg.h_obj;
+  slabs.min_cos = min_cos;
   // Refit and refine the parts (independent of each other).
   std::vector<std::optional<Found>> finished(parts.size());
   const auto n_parts = static_cast<long long>(parts.size());
   detail::parallelChunks(n_parts, threads, 1, [&](int, long long begin, long long end) {
     for (long long k = begin; k < end; ++k)
       finished[k] = finishPart(world.points, std::move(parts[k]), *part_candidate[k], out.up,
-                               sensor, centroid, cfg);
+                               sensor, centroid, world.isOrganized() ? nullptr : &slabs, cfg);
   });
   std::vector<Found> found;
   for (auto& f : finished) {
@@ -296,6 +309,7 @@ PlaneSegmentation segmentWithNormals(const PointCloud& world, const Config& cfg,
     found[k].plane.id = static_cast<int>(k);
     for (std::uint32_t i : found[k].inliers) out.labels[i] = static_cast<int>(k);
     out.planes.push_back(std::move(found[k].plane));
+    out.fitted.push_back(found[k].fitted ? 1 : 0);
   }
   return out;
 }

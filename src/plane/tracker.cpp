@@ -139,7 +139,7 @@ int PlaneTracker::addPlane(const PlaneObservation& obs,
   track.rng_state = 0x7a3c5eedULL + static_cast<std::uint64_t>(id);
   tracks_.push_back(std::move(track));
   Track& t = tracks_.back();
-  offerToReservoir(t, points, obs.inliers);
+  if (!obs.fitted) offerToReservoir(t, points, obs.inliers);
   occupy(t, points, obs.inliers);
   t.since_refine = obs.inliers.size();
   maybeRefine(id);
@@ -153,7 +153,7 @@ void PlaneTracker::absorb(int id, const PlaneObservation& obs,
   Track& track = tracks_[static_cast<std::size_t>(id)];
   plane.support += obs.inliers.size();
   plane.extent.extend(obs_extent);
-  offerToReservoir(track, points, obs.inliers);
+  if (!obs.fitted) offerToReservoir(track, points, obs.inliers);
   occupy(track, points, obs.inliers);
   track.since_refine += obs.inliers.size();
   maybeRefine(id);

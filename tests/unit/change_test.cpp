@@ -796,6 +796,41 @@ TEST(AssembleEvents, ASwapOfObjectsOfDifferentSizesMovesBothWhole) {
   EXPECT_EQ(assembleEvents({l_removed_shaped}, {l_added_shaped}, cfg).size(), 1u);
 }
 
+TEST(AssembleEvents, ANewObjectWhereAnotherWasRemovedReplacesItRatherThanArrivingByAMove) {
+  using V = BlobValidation::Verdict;
+  const Config cfg;
+  // Object A (columns 0-3) is gone, leaving nothing; object B (columns 10-12) is gone and C
+  // (columns 10-13) stands where it stood. A and C have matching shapes, B another one.
+  const auto blob = [&](int x0, int x1, double height) {
+    CandidateChange c = candidate(V::Changed, false);
+    c.region.columns.clear();
+    for (int x = x0; x <= x1; ++x) {
+      c.region.columns.emplace_back(x, 0);
+      c.region.points.emplace_back(0.01f * static_cast<float>(x), 0.0f, 0.05f);
+    }
+    c.region.shape.cells = x1 - x0 + 1;
+    c.region.shape.area = c.region.shape.cells * 1e-4;
+    c.region.shape.max_height = height;
+    c.region.shape.volume = c.region.shape.area * height;
+    c.target_columns = c.region.columns;
+    return c;
+  };
+  const CandidateChange a = blob(0, 3, 0.10), b = blob(10, 12, 0.25), c = blob(10, 13, 0.10);
+  const auto e = assembleEvents({a, b}, {c}, cfg);
+  ASSERT_EQ(e.size(), 2u);
+  const ChangeEvent* removed = e[0].type == ChangeType::Removed ? &e[0] : &e[1];
+  const ChangeEvent* replaced = removed == &e[0] ? &e[1] : &e[0];
+  EXPECT_EQ(removed->type, ChangeType::Removed);
+  EXPECT_EQ(removed->reference.columns.front().x(), 0);
+  EXPECT_EQ(replaced->type, ChangeType::Replaced);
+  EXPECT_EQ(replaced->reference.columns.front().x(), 10);
+  EXPECT_EQ(replaced->current.columns.size(), 4u);
+  // Where nothing stood before, the same shapes are a move.
+  const auto moved = assembleEvents({a}, {c}, cfg);
+  ASSERT_EQ(moved.size(), 1u);
+  EXPECT_EQ(moved[0].type, ChangeType::Moved);
+}
+
 // ---- other planes' surfaces in a plane's maps ------------------------------------------------
 
 /// A floor whose volume holds the height field `h(x, y)` (world = floor frame, 7 mm voxels).

@@ -229,6 +229,33 @@ TEST(PlaneDetect, AWholeCloudPlaneNeedsACorePlaneMinWidthWide) {
   EXPECT_EQ(planes.size(), 3u);
 }
 
+TEST(PlaneDetect, APanelSeenFromBothSidesIsItsFrontFace) {
+  // A reconstruction of a 2.5 cm panel (x = 1 to 1.025, 0.4 m x 1.5 m) on a 3 m x 3 m floor:
+  // the back face sampled everywhere, the front face (toward the scene, -x) more sparsely above
+  // 1 m, as cameras below the panel's top see it. A plane fitted to both faces lies between them
+  // and tilts; the plane is the front face, vertical.
+  std::mt19937 rng(11);
+  PointCloud cloud;
+  const Eigen::Vector3d ey = Eigen::Vector3d::UnitY(), ez = Eigen::Vector3d::UnitZ();
+  sampleRect(cloud.points, {-1.5, -1.5, 0}, Eigen::Vector3d::UnitX(), 3.0, ey, 3.0, 0.01, 0.001,
+             rng);
+  sampleRect(cloud.points, {1.025, -0.2, 0}, ey, 0.4, ez, 1.5, 0.007, 0.0015, rng);
+  sampleRect(cloud.points, {1.0, -0.2, 0}, ey, 0.4, ez, 1.0, 0.007, 0.0015, rng);
+  sampleRect(cloud.points, {1.0, -0.2, 1.0}, ey, 0.4, ez, 0.5, 0.02, 0.0015, rng);
+  cloud.width = static_cast<std::uint32_t>(cloud.points.size());
+  const PlaneSegmentation seg = segmentPlanes(cloud, Config{});
+  int vertical = 0;
+  for (const Plane& p : seg.planes) {
+    if (p.orientation != Plane::Orientation::Vertical) continue;
+    ++vertical;
+    EXPECT_LT(angleDeg(p.normal, -Eigen::Vector3d::UnitX()), 0.3);
+    // On the front face at the bottom and at the top of the panel.
+    for (const double z : {0.1, 1.4})
+      EXPECT_NEAR(p.signedDistance(Eigen::Vector3d(1.0, 0.0, z)), 0.0, 0.003) << "z " << z;
+  }
+  EXPECT_EQ(vertical, 1);
+}
+
 TEST(PlaneDetect, ANoisyWallClaimsItsWholeNoiseLayer) {
   // A raw far wall: the plane y = 1, 2 m x 2 m, 5 mm spacing, 2.5 cm Gaussian noise, over a
   // clean floor. A panel 0.6 m x 0.7 m turned 15 degrees stands in front of it; its plane crosses
