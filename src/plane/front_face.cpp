@@ -73,7 +73,14 @@ Eigen::Vector3d fitFrontLevels(const std::vector<CellLevels>& cells, double sepa
   return model;
 }
 
-using Cells = std::unordered_map<std::uint64_t, std::vector<std::pair<double, std::uint32_t>>>;
+using Cell = std::vector<std::pair<double, std::uint32_t>>;  // signed distance, point index
+using Cells = std::unordered_map<std::uint64_t, Cell>;
+
+/// The sums of a sorted cell's signed distances below and from index `k`.
+void faceSums(const Cell& c, std::size_t k, double& back_sum, double& front_sum) {
+  back_sum = front_sum = 0.0;
+  for (std::size_t j = 0; j < c.size(); ++j) (j < k ? back_sum : front_sum) += c[j].first;
+}
 
 /// The signed distances (to `normal`, `offset`) of the part's points and of the unclaimed ones
 /// within `reach` over its cells, normals agreeing, per in-plane cell: the other face of a panel
@@ -123,7 +130,7 @@ std::unordered_map<const void*, std::size_t> splitCells(Cells& cells, double min
     front_start[&c] = k;
     if (k == 0) continue;
     double back_sum = 0.0, front_sum = 0.0;
-    for (std::size_t j = 0; j < c.size(); ++j) (j < k ? back_sum : front_sum) += c[j].first;
+    faceSums(c, k, back_sum, front_sum);
     separations.push_back(front_sum / static_cast<double>(c.size() - k) -
                           back_sum / static_cast<double>(k));
   }
@@ -154,17 +161,13 @@ std::vector<CellLevels> cellLevels(const Cells& cells,
     }
     l.u /= static_cast<double>(c.size());
     l.v /= static_cast<double>(c.size());
-    const auto sums = [&](std::size_t k, double& back_sum, double& sum) {
-      back_sum = sum = 0.0;
-      for (std::size_t j = 0; j < c.size(); ++j) (j < k ? back_sum : sum) += c[j].first;
-    };
     std::size_t k = split->second;
     double back_sum = 0.0, sum = 0.0;
-    sums(k, back_sum, sum);
+    faceSums(c, k, back_sum, sum);
     if (k > 0 && std::abs(sum / static_cast<double>(c.size() - k) -
                           back_sum / static_cast<double>(k) - thickness) > tolerance) {
       k = 0;
-      sums(k, back_sum, sum);
+      faceSums(c, k, back_sum, sum);
     }
     l.front = sum / static_cast<double>(c.size() - k);
     if (k > 0) {
