@@ -316,7 +316,8 @@ void landedOn(CandidateChange& c, Landed& into, double min_overlap) {
 std::vector<ChangeRegion> takeIntoMoves(Assembly& a, Landed& regions,
                                         ChangeRegion ChangeEvent::*side) {
   std::vector<ChangeRegion> left;
-  for (auto& [x, covered] : regions) {
+  for (auto& [region, covered] : regions) {
+    ChangeRegion& x = region;  // a lambda may not capture a structured binding (C++17)
     const auto e = std::find_if(a.events.begin(), a.events.end(), [&](const ChangeEvent& o) {
       const ChangeRegion& r = o.*side;
       return o.type == ChangeType::Moved && r.plane_id == x.plane_id &&
