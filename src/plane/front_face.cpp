@@ -1,6 +1,6 @@
 // A thin panel's plane on its front face (design.md, "A panel's front face").
 
-#include <Eigen/Eigenvalues>
+#include <Eigen/Cholesky>
 
 #include <algorithm>
 #include <cmath>
@@ -16,6 +16,15 @@ constexpr std::size_t kMinCellPoints = 8;  // a cell needs this many points to s
 constexpr double kMinFaceShare = 0.1;      // each face holds this share of its cell's points
 constexpr std::size_t kMinFacePoints = 3;
 constexpr double kMinSlabShare = 0.1;  // of the counted cells show two faces
+
+/// The points over one in-plane cell: (signed distance, point index), and where its front face
+/// starts once sorted (0: one face).
+struct Cell {
+  std::vector<std::pair<double, std::uint32_t>> s;
+  std::size_t front_start = 0;
+  bool counted = false;  ///< it has kMinCellPoints or more
+};
+using Cells = std::unordered_map<std::uint64_t, Cell>;
 
 /// In one cell's sorted signed distances, the index where the front face starts: the widest gap
 /// of at least `min_gap` with enough points on both sides; 0 when the cell shows one face.
@@ -73,13 +82,10 @@ Eigen::Vector3d fitFrontLevels(const std::vector<CellLevels>& cells, double sepa
   return model;
 }
 
-using Cell = std::vector<std::pair<double, std::uint32_t>>;  // signed distance, point index
-using Cells = std::unordered_map<std::uint64_t, Cell>;
-
 /// The sums of a sorted cell's signed distances below and from index `k`.
 void faceSums(const Cell& c, std::size_t k, double& back_sum, double& front_sum) {
   back_sum = front_sum = 0.0;
-  for (std::size_t j = 0; j < c.size(); ++j) (j < k ? back_sum : front_sum) += c[j].first;
+  for (std::size_t j = 0; j < c.s.size(); ++j) (j < k ? back_sum : front_sum) += c.s[j].first;
 }
 
 /// The signed distances (to `normal`, `offset`) of the part's points and of the unclaimed ones
@@ -97,7 +103,7 @@ Cells gatherCells(const SlabSearch& in, const std::vector<std::uint32_t>& part,
   Cells cells;
   for (const std::uint32_t i : part) {
     const Eigen::Vector3d p = in.points[i].cast<double>();
-    cells[cellKey(p)].emplace_back(normal.dot(p) + offset, i);
+    cells[cellKey(p)].s.emplace_back(normal.dot(p) + offset, i);
   }
   const float* nrm = xyzData(in.normals);
   for (const std::uint32_t i : in.valid) {
@@ -110,66 +116,64 @@ Cells gatherCells(const SlabSearch& in, const std::vector<std::uint32_t>& part,
         std::abs(normal.x() * q[0] + normal.y() * q[1] + normal.z() * q[2]) < in.min_cos)
       continue;
     const auto c = cells.find(cellKey(p));
-    if (c != cells.end()) c->second.emplace_back(s, i);
+    if (c != cells.end()) c->second.s.emplace_back(s, i);
   }
   return cells;
 }
 
-/// Where each cell with kMinCellPoints or more (sorted in place) splits into two faces (0: one
-/// face), and the median distance between the faces' means of the split ones (NaN: none).
-std::unordered_map<const void*, std::size_t> splitCells(Cells& cells, double min_gap,
-                                                        std::size_t& counted, double& thickness) {
-  std::unordered_map<const void*, std::size_t> front_start;
+/// Sorts each cell with kMinCellPoints or more, marks it counted and finds where it splits into
+/// two faces; returns how many were counted and the median distance between the faces' means of
+/// the split ones in `thickness` (NaN: none split).
+std::size_t splitCells(Cells& cells, double min_gap, double& thickness) {
   std::vector<double> separations;
-  counted = 0;
+  std::size_t counted = 0;
   for (auto& [key, c] : cells) {
-    if (c.size() < kMinCellPoints) continue;
+    if (c.s.size() < kMinCellPoints) continue;
     ++counted;
-    std::sort(c.begin(), c.end());
-    const std::size_t k = frontStart(c, min_gap);
-    front_start[&c] = k;
+    c.counted = true;
+    std::sort(c.s.begin(), c.s.end());
+    const std::size_t k = frontStart(c.s, min_gap);
+    c.front_start = k;
     if (k == 0) continue;
     double back_sum = 0.0, front_sum = 0.0;
     faceSums(c, k, back_sum, front_sum);
-    separations.push_back(front_sum / static_cast<double>(c.size() - k) -
+    separations.push_back(front_sum / static_cast<double>(c.s.size() - k) -
                           back_sum / static_cast<double>(k));
   }
   thickness = std::numeric_limits<double>::quiet_NaN();
-  if (separations.empty()) return front_start;
+  if (separations.empty()) return counted;
   std::nth_element(separations.begin(), separations.begin() + separations.size() / 2,
                    separations.end());
   thickness = separations[separations.size() / 2];
-  return front_start;
+  return counted;
 }
 
 /// Each counted cell's mean position and face levels; a split whose faces lie not within
 /// `tolerance` of `thickness` apart (an object's top over the front face) counts as one face.
-std::vector<CellLevels> cellLevels(const Cells& cells,
-                                   const std::unordered_map<const void*, std::size_t>& splits,
-                                   const std::vector<Eigen::Vector3f>& points,
+std::vector<CellLevels> cellLevels(const Cells& cells, const std::vector<Eigen::Vector3f>& points,
                                    const Eigen::Matrix3d& axes, double thickness,
                                    double tolerance) {
   std::vector<CellLevels> levels;
   for (const auto& [key, c] : cells) {
-    const auto split = splits.find(&c);
-    if (split == splits.end()) continue;
+    if (!c.counted) continue;
     CellLevels l;
-    for (const auto& [s, i] : c) {
+    for (const auto& [s, i] : c.s) {
       const Eigen::Vector3d q = axes.transpose() * points[i].cast<double>();
       l.u += q.x();
       l.v += q.y();
     }
-    l.u /= static_cast<double>(c.size());
-    l.v /= static_cast<double>(c.size());
-    std::size_t k = split->second;
+    const auto m = static_cast<double>(c.s.size());
+    l.u /= m;
+    l.v /= m;
+    std::size_t k = c.front_start;
     double back_sum = 0.0, sum = 0.0;
     faceSums(c, k, back_sum, sum);
-    if (k > 0 && std::abs(sum / static_cast<double>(c.size() - k) -
-                          back_sum / static_cast<double>(k) - thickness) > tolerance) {
+    if (k > 0 && std::abs(sum / (m - static_cast<double>(k)) - back_sum / static_cast<double>(k) -
+                          thickness) > tolerance) {
       k = 0;
       faceSums(c, k, back_sum, sum);
     }
-    l.front = sum / static_cast<double>(c.size() - k);
+    l.front = sum / (m - static_cast<double>(k));
     if (k > 0) {
       l.two = true;
       l.back = back_sum / static_cast<double>(k);
@@ -185,12 +189,11 @@ bool fitFrontFace(const SlabSearch& in, std::vector<std::uint32_t>& part,
                   const Eigen::Matrix3d& axes, Eigen::Vector3d& normal, double& offset) {
   if (!(in.cell > 0.0) || !(in.min_gap > 0.0) || part.size() < kMinCellPoints) return false;
   Cells cells = gatherCells(in, part, axes, normal, offset);
-  std::size_t counted = 0;
   double thickness = 0.0;
-  const auto splits = splitCells(cells, in.min_gap, counted, thickness);
+  const std::size_t counted = splitCells(cells, in.min_gap, thickness);
   if (!std::isfinite(thickness)) return false;
   const std::vector<CellLevels> levels =
-      cellLevels(cells, splits, in.points, axes, thickness, 0.5 * in.min_gap);
+      cellLevels(cells, in.points, axes, thickness, 0.5 * in.min_gap);
   std::size_t two_faced = 0;
   double u0 = 0.0, v0 = 0.0, front_sum = 0.0;
   for (const CellLevels& l : levels) {
@@ -217,7 +220,7 @@ bool fitFrontFace(const SlabSearch& in, std::vector<std::uint32_t>& part,
   // face's unclaimed ones.
   std::vector<std::uint32_t> all = part;
   for (const auto& [key, c] : cells)
-    for (const auto& [s, i] : c)
+    for (const auto& [s, i] : c.s)
       if (std::abs(normal.dot(in.points[i].cast<double>()) + offset) <= 0.5 * in.min_gap)
         all.push_back(i);
   std::sort(all.begin(), all.end());
