@@ -92,7 +92,13 @@ fs::path temporaryName(const fs::path& dir, const fs::path& target) {
 int openAnonymous(const fs::path& dir) {
 #ifdef O_TMPFILE
   if (::access("/proc/self/fd", X_OK) != 0) return -1;
-  return ::open(dir.c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
+  const int fd = ::open(dir.c_str(), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
+  // Locked before it gets a name, so removeFileLeftovers never takes a file being written.
+  if (fd >= 0 && ::flock(fd, LOCK_EX) != 0) {
+    ::close(fd);
+    return -1;
+  }
+  return fd;
 #else
   (void)dir;
   return -1;
@@ -104,8 +110,13 @@ fs::path createNamed(const fs::path& dir, const fs::path& target, Fd& fd, const 
   for (int attempt = 0; attempt < 100; ++attempt) {
     const fs::path tmp = temporaryName(dir, target);
     fd.fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-    if (fd.fd >= 0) return tmp;
-    if (errno != EEXIST) break;
+    if (fd.fd < 0 && errno != EEXIST) break;
+    if (fd.fd < 0) continue;
+    // Locked before anything is written; another run's removeFileLeftovers may have taken the
+    // name in the instant before the lock, then the file is gone and a new name is tried.
+    struct stat st {};
+    if (::flock(fd.fd, LOCK_EX) == 0 && ::fstat(fd.fd, &st) == 0 && st.st_nlink > 0) return tmp;
+    fd.close();
   }
   throw Error(path, "cannot create temporary file: " + lastError());
 }
@@ -119,6 +130,12 @@ fs::path linkNamed(int fd, const fs::path& dir, const fs::path& target, const st
     if (errno != EEXIST) break;
   }
   throw Error(path, "cannot link the temporary file into the folder: " + lastError());
+}
+
+// Links the unnamed file `fd` as `target` when no file of that name exists.
+bool linkAs(int fd, const fs::path& target) {
+  const std::string self = "/proc/self/fd/" + std::to_string(fd);
+  return ::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, target.c_str(), AT_SYMLINK_FOLLOW) == 0;
 }
 
 void writeThrough(int fd, const std::function<void(std::ostream&)>& write,
@@ -152,6 +169,24 @@ void removeLeftovers(const fs::path& dir) {
     if (!e.is_directory(ec) || e.is_symlink(ec)) continue;
     Fd lock = lockFolder(e.path(), LOCK_EX | LOCK_NB);
     if (lock.fd >= 0) fs::remove_all(e.path(), ec);
+  }
+}
+
+// True for `.NAME.tmpXXXXXX`, the temporary names writeFileAtomic gives files for `NAME`.
+bool isTemporaryFile(const std::string& entry, const std::string& name) {
+  return entry.size() > 1 && entry[0] == '.' && isTemporarySibling(entry.substr(1), name);
+}
+
+// Removes the temporary files of `target` that no running writer holds locked: a process killed
+// between naming its finished file and renaming it over `target` leaves one.
+void removeFileLeftovers(const fs::path& dir, const fs::path& target) {
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    if (!isTemporaryFile(e.path().filename().string(), target.filename().string())) continue;
+    if (!e.is_regular_file(ec) || e.is_symlink(ec)) continue;
+    Fd fd;
+    fd.fd = ::open(e.path().c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW | O_NONBLOCK);
+    if (fd.fd >= 0 && ::flock(fd.fd, LOCK_EX | LOCK_NB) == 0) ::unlink(e.path().c_str());
   }
 }
 
@@ -209,14 +244,28 @@ void writeFileAtomic(const std::string& path, const std::function<void(std::ostr
   if (!fs::is_directory(dir, ec))
     throw Error(path, "output folder '" + dir.string() + "' does not exist");
 
-  // The file gets a name only once complete, so a killed process leaves nothing behind.
+  // The file gets a name only once complete. A new file is linked under its own name, so a
+  // killed process leaves nothing; a replacement is linked under a temporary name and renamed
+  // over the target, and the next replacement removes what a run killed in between left.
   Fd fd;
   fs::path tmp;
   if (allow_anonymous) fd.fd = openAnonymous(dir);
-  if (fd.fd < 0) tmp = createNamed(dir, target, fd, path);
+  if (fd.fd < 0) {
+    removeFileLeftovers(dir, target);
+    tmp = createNamed(dir, target, fd, path);
+  }
   try {
     writeThrough(fd.fd, write, path);
-    if (tmp.empty()) tmp = linkNamed(fd.fd, dir, target, path);
+    if (tmp.empty() && linkAs(fd.fd, target)) {
+      if (fd.close()) return;
+      const std::string why = lastError();
+      ::unlink(target.c_str());
+      throw Error(path, "write failed: " + why);
+    }
+    if (tmp.empty()) {
+      removeFileLeftovers(dir, target);
+      tmp = linkNamed(fd.fd, dir, target, path);
+    }
     if (!fd.close()) throw Error(path, "write failed: " + lastError());
     if (::rename(tmp.c_str(), target.c_str()) != 0)
       throw Error(path, "cannot rename temporary file into place: " + lastError());

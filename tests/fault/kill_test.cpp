@@ -1,6 +1,7 @@
 // Fault test: `planesdf fuse` and `planesdf detect` killed with SIGKILL at random moments. Each
 // output must be the complete old one or the complete new one, and no stray file may remain
-// (detect's killed build folder DIR.tmpXXXXXX only until the next run into DIR removes it).
+// (a killed run's temporary, a hidden `.NAME.tmpXXXXXX` file or detect's build folder
+// DIR.tmpXXXXXX, only until the next run into the same output removes it).
 #include <fcntl.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -8,6 +9,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <map>
@@ -155,10 +157,18 @@ TEST(KillDuringOutput, FuseMapIsOldOrNewAndNoStrayFileRemains) {
     const Tree now = readTree(out);
     ASSERT_TRUE(now == complete[state] || now == complete[next]) << "trial " << trial;
     if (now == complete[next]) state = next;
-    ASSERT_EQ(entries(tmp.file("out")), std::vector<std::string>{"map.psdf"}) << "trial " << trial;
+    // A run killed between naming its finished map and the rename leaves one hidden temporary
+    // file; the next run that completes removes it.
+    std::vector<std::string> names = entries(tmp.file("out"));
+    std::sort(names.begin(), names.end());
+    if (run.killed && names.size() == 2 && names[0].rfind(".map.psdf.tmp", 0) == 0)
+      names.erase(names.begin());
+    ASSERT_EQ(names, std::vector<std::string>{"map.psdf"}) << "trial " << trial;
   }
   std::printf("fuse: %d of %d runs killed\n", killed, kTrialsPerCommand);
   EXPECT_GE(killed, kTrialsPerCommand / 4);
+  completeRun({"fuse", sessions[0], "--out", out});
+  EXPECT_EQ(entries(tmp.file("out")), std::vector<std::string>{"map.psdf"});
 }
 
 TEST(KillDuringOutput, DetectFolderIsOldOrNewAndTheNextRunRemovesTheLeftover) {

@@ -1,6 +1,7 @@
 // Core data structs and the atomic-output helper.
 #include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -112,6 +113,31 @@ TEST(AtomicFile, KillDuringWriteLeavesOnlyTheOldFile) {
               ::testing::KilledBySignal(SIGKILL), "");
   EXPECT_EQ(entries(tmp.path()), std::vector<std::string>{"map.psdf"});
   EXPECT_EQ(slurp(p), "old");
+}
+
+TEST(AtomicFile, TheNextReplacementRemovesAKilledRunsTemporaryButNotARunningOnes) {
+  // A run killed between naming its finished file and the rename leaves `.NAME.tmpXXXXXX`; a
+  // running writer holds its temporary file locked.
+  TempDir tmp;
+  const std::string p = tmp.file("map.psdf");
+  planesdf::io::writeFileAtomic(p, [](std::ostream& o) { o << "old"; });
+  planesdf::test::writeBytes(tmp.file(".map.psdf.tmpdead01"), "killed");
+  planesdf::test::writeBytes(tmp.file(".map.psdf.tmplive01"), "running");
+  planesdf::test::writeBytes(tmp.file(".other.psdf.tmpdead02"), "another file's");
+  planesdf::test::writeBytes(tmp.file(".map.psdf.tmpdead0123"), "not a temporary name");
+  const int held = ::open(tmp.file(".map.psdf.tmplive01").c_str(), O_RDONLY);
+  ASSERT_GE(held, 0);
+  ASSERT_EQ(::flock(held, LOCK_EX), 0);
+  for (bool anonymous : {true, false}) {
+    planesdf::io::writeFileAtomic(
+        p, [](std::ostream& o) { o << "new"; }, anonymous);
+    EXPECT_EQ(slurp(p), "new");
+    EXPECT_EQ(entries(tmp.path()),
+              (std::vector<std::string>{".map.psdf.tmpdead0123", ".map.psdf.tmplive01",
+                                        ".other.psdf.tmpdead02", "map.psdf"}));
+    planesdf::test::writeBytes(tmp.file(".map.psdf.tmpdead01"), "killed");
+  }
+  ::close(held);
 }
 
 void writeFolder(const std::string& dir, const std::vector<std::string>& files,

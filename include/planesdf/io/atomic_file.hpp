@@ -11,10 +11,12 @@
 namespace planesdf::io {
 
 /// Calls `write(stream)` on a binary stream to a temporary file in the same folder as `path`,
-/// flushes it, then renames it to `path`. The temporary file is anonymous (O_TMPFILE) and gets
-/// a name (`.NAME.tmpXXXXXX`, linked through /proc/self/fd) only once written, so a killed
-/// process leaves nothing; where the file system refuses O_TMPFILE it is named from the start. On
-/// any failure (the callback throws, the stream goes bad, the rename fails) the temporary file is
+/// flushes it, then puts it in place. The temporary file is anonymous (O_TMPFILE) while written;
+/// a new `path` is then linked to it directly (a killed process leaves nothing), an existing one
+/// is replaced by linking it as `.NAME.tmpXXXXXX` and renaming that over `path`. Where the file
+/// system refuses O_TMPFILE the temporary file is named from the start. The temporary file is
+/// locked while its writer runs; a replacement first removes the unlocked ones a killed run left
+/// beside `path`. On any failure (the callback throws, the stream goes bad, the rename fails) the temporary file is
 /// removed, `path` is untouched and planesdf::Error naming `path` is thrown (the callback's own
 /// planesdf::Error passes through).
 void writeFileAtomic(const std::string& path, const std::function<void(std::ostream&)>& write);
