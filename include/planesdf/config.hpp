@@ -189,8 +189,9 @@ struct Config {
   double structure_min_extent = 1.0;
   double structure_behind = 0.10;
   double structure_front = 0.06;
-  /// m; room structure at least this long is a wall: its surface near another wall is structure
-  /// at any height (the planes of frame streams stop near 1.8 m).
+  /// m; room structure at least this long is a wall: its surface is structure at any height
+  /// (the planes of frame streams stop near 1.8 m) and along its whole line, beyond the ends of
+  /// its extent (a patch of it cut off from the rest by what hid the wall between).
   double wall_min_length = 2.0;
   /// Speckle filter of the object map (computeObjectMap). A connected component of cells above
   /// h_obj in which fewer than this fraction of the cells have their whole 3x3 neighbourhood above

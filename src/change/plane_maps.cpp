@@ -157,9 +157,12 @@ std::vector<Claim> claimsOn(const Plane& plane, const std::vector<PlaneSdf>& map
       const bool structure = isStructure(q);
       Eigen::AlignedBox2d box = grown(q.extent, cfg.ownership_extent_margin);
       // A wall goes on up beyond what the streams' planes saw of it (their extents stop near
-      // 1.8 m): its surface near another wall is structure at any height (v is up).
-      if (structure && q.extent.sizes().x() >= cfg.wall_min_length)
+      // 1.8 m), and along to the room's corners beyond a patch cut off from it (v is up).
+      if (structure && q.extent.sizes().x() >= cfg.wall_min_length) {
         box.max().y() = std::numeric_limits<double>::infinity();
+        box.min().x() = -std::numeric_limits<double>::infinity();
+        box.max().x() = std::numeric_limits<double>::infinity();
+      }
       claims.push_back({&q, -(structure ? cfg.structure_behind : cfg.ownership_surface_distance),
                         structure ? cfg.structure_front : cfg.ownership_surface_distance, box});
     }

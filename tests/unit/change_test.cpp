@@ -859,8 +859,9 @@ PlaneSdf floorWith(const std::function<double(double, double)>& h) {
   return ps;
 }
 
-/// A vertical plane facing -y at y = y0, `length` m long along x and `height` m high.
-PlaneSdf wallAt(double y0, double length, double height) {
+/// A vertical plane facing -y at y = y0, `length` m long along x from x0 (default: centred on
+/// x = 0) and `height` m high.
+PlaneSdf wallAt(double y0, double length, double height, double x0 = std::nan("")) {
   Plane wall;
   wall.id = 1;
   wall.orientation = Plane::Orientation::Vertical;
@@ -870,8 +871,8 @@ PlaneSdf wallAt(double y0, double length, double height) {
   wall.frame_axes.col(0) = Eigen::Vector3d::UnitX();
   wall.frame_axes.col(1) = Eigen::Vector3d::UnitZ();
   wall.frame_axes.col(2) = wall.normal;
-  wall.extent = Eigen::AlignedBox2d(Eigen::Vector2d(-0.5 * length, 0.0),
-                                    Eigen::Vector2d(0.5 * length, height));
+  if (std::isnan(x0)) x0 = -0.5 * length;
+  wall.extent = Eigen::AlignedBox2d(Eigen::Vector2d(x0, 0.0), Eigen::Vector2d(x0 + length, height));
   return PlaneSdf(wall, TsdfVolume(Config{}));
 }
 
@@ -919,6 +920,30 @@ TEST(PlaneMaps, AWallsNoisySurfaceAndTheBandBehindItAreStructureNotObjects) {
   EXPECT_GT(near_face, 0);
   EXPECT_EQ(objectCellsBetween(with_face, 0.34, 0.38), objectCellsBetween(alone, 0.34, 0.38));
   EXPECT_EQ(objectCellsBetween(with_face, 0.26, 0.28), objectCellsBetween(alone, 0.26, 0.28));
+}
+
+TEST(PlaneMaps, ARoomWallGoesOnAlongItsLineBeyondTheEndsOfItsExtent) {
+  // The floor's band holds a wall's surface at y = 0.31 m across the floor (x in [-0.5, 0.5]),
+  // but the wall's plane only has the extent from x = 0.3 on: the patch at x < 0.3 was cut off
+  // from the rest by what hid the wall between. A 6 cm box stands 20 cm in front of it.
+  const auto field = [](double, double y) {
+    if (y >= 0.26 && y < 0.38) return 0.29;
+    if (y >= 0.05 && y < 0.11) return 0.06;
+    return 0.0;
+  };
+  const PlaneSdf floor = floorWith(field);
+  const Config cfg;
+  const PlaneMaps alone = computePlaneMaps(floor, {floor}, cfg);
+  // A wall (at least Config::wall_min_length long): the whole line is structure, the box stays.
+  const PlaneMaps wall = computePlaneMaps(floor, {floor, wallAt(0.31, 2.4, 2.0, 0.3)}, cfg);
+  EXPECT_EQ(objectCellsBetween(wall, 0.26, 0.38), 0);
+  EXPECT_EQ(objectCellsBetween(wall, 0.05, 0.11), objectCellsBetween(alone, 0.05, 0.11));
+  // Shorter room structure (a shelf's side) claims only its extent: the patch stays objects,
+  // 0.8 m of the floor's 1 m less the extent margin.
+  const PlaneMaps side = computePlaneMaps(floor, {floor, wallAt(0.31, 1.5, 2.0, 0.3)}, cfg);
+  const double patch = (0.8 - cfg.ownership_extent_margin) / 1.0;
+  EXPECT_NEAR(objectCellsBetween(side, 0.26, 0.38), patch * objectCellsBetween(alone, 0.26, 0.38),
+              0.03 * objectCellsBetween(alone, 0.26, 0.38));
 }
 
 TEST(PlaneMaps, AShelfFrontSeenThroughToTheWallIsNotStructure) {
