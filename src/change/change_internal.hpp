@@ -200,6 +200,9 @@ std::vector<ChangeEvent> assembleEvents(std::vector<CandidateChange> removed,
 /// comparing it would shift every height by the gap). Result ordered by source id.
 std::vector<PlaneMatch> uniqueMatches(std::vector<PlaneMatch> matches);
 
+/// Signature of a set of cells of a height map (heights > 0 count toward the volume).
+ShapeSignature signatureOf(const HeightMap& hm, const std::vector<Eigen::Vector2i>& cells);
+
 /// The blob `cells` of source height map `src`, carried into the target grid by T (plane-local
 /// source -> target), against the objects of `tgt_objects` (on `tgt`) those cells land on: their
 /// footprint overlap, centroid shift and shape distance (signatures over each map's own cells).

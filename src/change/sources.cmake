@@ -1,1 +1,1 @@
-set(PLANESDF_CHANGE_SOURCES validation.cpp registration.cpp inplane_refinement.cpp comparison.cpp change.cpp plane_maps.cpp assemble.cpp session.cpp change_io.cpp change_json.cpp event_types.cpp event_io.cpp detector.cpp)
+set(PLANESDF_CHANGE_SOURCES validation.cpp registration.cpp inplane_refinement.cpp comparison.cpp compare_pair.cpp band_points.cpp voxel_region.cpp object_fit.cpp shape.cpp plane_maps.cpp assemble.cpp session.cpp change_io.cpp change_json.cpp event_types.cpp event_io.cpp detector.cpp)
