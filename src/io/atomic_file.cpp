@@ -121,21 +121,20 @@ fs::path createNamed(const fs::path& dir, const fs::path& target, Fd& fd, const 
   throw Error(path, "cannot create temporary file: " + lastError());
 }
 
-// Gives the unnamed file `fd` a new temporary name beside `target`; returns the name.
-fs::path linkNamed(int fd, const fs::path& dir, const fs::path& target, const std::string& path) {
-  const std::string self = "/proc/self/fd/" + std::to_string(fd);
-  for (int attempt = 0; attempt < 100; ++attempt) {
-    const fs::path tmp = temporaryName(dir, target);
-    if (::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, tmp.c_str(), AT_SYMLINK_FOLLOW) == 0) return tmp;
-    if (errno != EEXIST) break;
-  }
-  throw Error(path, "cannot link the temporary file into the folder: " + lastError());
-}
-
-// Links the unnamed file `fd` as `target` when no file of that name exists.
+// Links the unnamed file `fd` as `target` when no file of that name exists (errno on failure).
 bool linkAs(int fd, const fs::path& target) {
   const std::string self = "/proc/self/fd/" + std::to_string(fd);
   return ::linkat(AT_FDCWD, self.c_str(), AT_FDCWD, target.c_str(), AT_SYMLINK_FOLLOW) == 0;
+}
+
+// Gives the unnamed file `fd` a new temporary name beside `target`; returns the name.
+fs::path linkNamed(int fd, const fs::path& dir, const fs::path& target, const std::string& path) {
+  for (int attempt = 0; attempt < 100; ++attempt) {
+    const fs::path tmp = temporaryName(dir, target);
+    if (linkAs(fd, tmp)) return tmp;
+    if (errno != EEXIST) break;
+  }
+  throw Error(path, "cannot link the temporary file into the folder: " + lastError());
 }
 
 void writeThrough(int fd, const std::function<void(std::ostream&)>& write,
